@@ -1,0 +1,292 @@
+"""Scene types: plain data as pytrees (Equinox modules).
+
+Conventions (the same everywhere in the library):
+
+- lengths are in metres; the ground (receiver) plane is ``z = 0`` and ``z`` points up;
+- 2-D arrays are indexed ``[row, col] = [y, x]``;
+- an extent is ``(x_min, x_max, y_min, y_max)`` and covers the outer *edges* of the
+  pixels, so pixel ``(i, j)`` of an array of shape ``(rows, cols)`` has its centre at
+  ``x = x_min + (j + 0.5) * dx``, ``y = y_min + (i + 0.5) * dy``;
+- irradiance is relative to the irradiance the light gives a horizontal plane, so flat
+  water gives exactly 1.0 at any light angle (Fresnel off).
+
+Array fields are pytree leaves (traced, differentiable); everything that fixes shapes or
+control flow (boundary mode, receiver shape, indices of refraction, Fresnel on/off) is
+static, so ``jax.jit`` specialises on it and effects a scene does not call for are never
+traced. Inputs are checked when a scene is built, before anything is compiled.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from collections.abc import Sequence
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jaxtyping import Array, Float
+
+BOUNDARY_MODES = ("periodic", "clamp")
+
+
+def _is_concrete(x) -> bool:
+    return not isinstance(x, jax.core.Tracer)
+
+
+def _as_float_array(value, name: str) -> Array:
+    if isinstance(value, jax.Array):
+        arr = value
+    else:
+        try:
+            arr = np.asarray(value)
+        except Exception as err:  # noqa: BLE001 - re-raised with the argument's name
+            raise ValueError(f"`{name}` must be array-like, got {type(value).__name__}") from err
+        if arr.dtype == object or not np.issubdtype(arr.dtype, np.number):
+            raise ValueError(f"`{name}` must be numeric, got dtype {arr.dtype}")
+    if not jnp.issubdtype(arr.dtype, jnp.floating):
+        arr = jnp.asarray(arr, dtype=jnp.result_type(float))
+    return jnp.asarray(arr)
+
+
+def _check_finite(arr, name: str) -> None:
+    if _is_concrete(arr) and not bool(np.all(np.isfinite(np.asarray(arr)))):
+        raise ValueError(f"`{name}` contains NaN or infinite values")
+
+
+def _check_extent(extent, name: str) -> Array:
+    ext = _as_float_array(extent, name)
+    if ext.shape != (4,):
+        raise ValueError(f"`{name}` must be (x_min, x_max, y_min, y_max), got shape {ext.shape}")
+    _check_finite(ext, name)
+    if _is_concrete(ext):
+        e = np.asarray(ext)
+        if not (e[1] > e[0] and e[3] > e[2]):
+            raise ValueError(f"`{name}` must have x_max > x_min and y_max > y_min, got {e.tolist()}")
+    return ext
+
+
+def _check_positive_scalar(value, name: str) -> Array:
+    arr = _as_float_array(value, name)
+    if arr.shape != ():
+        raise ValueError(f"`{name}` must be a scalar, got shape {arr.shape}")
+    _check_finite(arr, name)
+    if _is_concrete(arr) and not float(arr) > 0:
+        raise ValueError(f"`{name}` must be positive, got {float(arr)}")
+    return arr
+
+
+class HeightField(eqx.Module):
+    """A height field ``z = base + heights(x, y)``, interpolated bicubically.
+
+    The surface between samples is the Catmull-Rom bicubic interpolant of ``heights``
+    (C1: continuous normals); samples sit at pixel centres of ``extent``.
+
+    **Arguments:**
+
+    - `heights`: array of shape ``(rows, cols)``, metres, indexed ``[y, x]``.
+    - `extent`: ``(x_min, x_max, y_min, y_max)`` in metres, covering the pixel edges.
+    - `boundary`: ``"periodic"`` (the surface tiles the plane with period ``extent``) or
+      ``"clamp"`` (edge samples extend outwards, so the surface is flat-ish outside).
+    """
+
+    heights: Float[Array, "rows cols"]
+    extent: Float[Array, "4"]
+    boundary: str = eqx.field(static=True)
+
+    def __init__(self, heights, extent, boundary: str = "periodic"):
+        h = _as_float_array(heights, "heights")
+        if h.ndim != 2:
+            raise ValueError(f"`heights` must be 2-D (rows, cols), got shape {h.shape}")
+        if h.shape[0] < 2 or h.shape[1] < 2:
+            raise ValueError(f"`heights` needs at least 2x2 samples, got shape {h.shape}")
+        _check_finite(h, "heights")
+        if boundary not in BOUNDARY_MODES:
+            raise ValueError(f"`boundary` must be one of {BOUNDARY_MODES}, got {boundary!r}")
+        self.heights = h
+        self.extent = _check_extent(extent, "extent")
+        self.boundary = boundary
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        return tuple(self.heights.shape)  # type: ignore[return-value]
+
+
+class DirectionalLight(eqx.Module):
+    """Collimated light (the Sun, a distant lamp).
+
+    **Arguments:**
+
+    - `direction`: shape ``(3,)``, the direction the light *travels* (not normalised
+      necessarily); its ``z`` component must be negative (light going down). Any angle up
+      to grazing is allowed.
+
+    Use `DirectionalLight.from_angles(zenith_deg, azimuth_deg)` to build one from angles.
+    """
+
+    direction: Float[Array, "3"]
+
+    def __init__(self, direction):
+        d = _as_float_array(direction, "direction")
+        if d.shape != (3,):
+            raise ValueError(f"`direction` must have shape (3,), got {d.shape}")
+        _check_finite(d, "direction")
+        if _is_concrete(d):
+            dn = np.asarray(d, dtype=float)
+            norm = float(np.linalg.norm(dn))
+            if norm == 0.0:
+                raise ValueError("`direction` must be non-zero")
+            if not dn[2] / norm < -1e-6:
+                raise ValueError(
+                    f"`direction` is the direction of travel and must point down (z < 0), "
+                    f"got {dn.tolist()}"
+                )
+        self.direction = d
+
+    @classmethod
+    def from_angles(cls, zenith_deg: float, azimuth_deg: float = 0.0) -> DirectionalLight:
+        """Light arriving at `zenith_deg` from vertical, travelling towards `azimuth_deg`
+        (measured from +x towards +y)."""
+        if not 0.0 <= zenith_deg < 90.0:
+            raise ValueError(f"`zenith_deg` must be in [0, 90), got {zenith_deg}")
+        z, a = math.radians(zenith_deg), math.radians(azimuth_deg)
+        return cls([math.sin(z) * math.cos(a), math.sin(z) * math.sin(a), -math.cos(z)])
+
+    @property
+    def unit_direction(self) -> Float[Array, "3"]:
+        return self.direction / jnp.linalg.norm(self.direction)
+
+
+class PlaneReceiver(eqx.Module):
+    """The ground plane ``z = 0`` with a pixel grid: the caustic map.
+
+    **Arguments:**
+
+    - `extent`: ``(x_min, x_max, y_min, y_max)`` in metres, covering pixel edges.
+    - `shape`: ``(rows, cols)`` pixels.
+    """
+
+    extent: Float[Array, "4"]
+    shape: tuple[int, int] = eqx.field(static=True)
+
+    def __init__(self, extent, shape: Sequence[int]):
+        self.extent = _check_extent(extent, "extent")
+        try:
+            shp = tuple(int(s) for s in shape)
+        except TypeError as err:
+            raise ValueError(f"`shape` must be (rows, cols), got {shape!r}") from err
+        if len(shp) != 2 or min(shp) < 1:
+            raise ValueError(f"`shape` must be (rows, cols) with at least one pixel, got {shape!r}")
+        self.shape = shp  # type: ignore[assignment]
+
+    @property
+    def pixel_size(self) -> tuple[Array, Array]:
+        """``(dx, dy)`` in metres."""
+        return (
+            (self.extent[1] - self.extent[0]) / self.shape[1],
+            (self.extent[3] - self.extent[2]) / self.shape[0],
+        )
+
+
+@dataclasses.dataclass(frozen=True)
+class Effects:
+    """What a scene will simulate (static configuration; see `WaterScene.effects`)."""
+
+    refraction: bool
+    reflection: bool
+    fresnel: bool
+    total_internal_reflection: bool
+    dispersion_channels: int
+    occlusion: bool
+    interfaces: int
+
+
+def _check_ior(ior) -> float | tuple[float, ...]:
+    if isinstance(ior, (jax.Array, np.ndarray)) and ior.ndim == 0:
+        ior = float(ior)
+    if isinstance(ior, (int, float)):
+        values: tuple[float, ...] = (float(ior),)
+    else:
+        try:
+            values = tuple(float(v) for v in ior)
+        except (TypeError, jax.errors.ConcretizationTypeError) as err:
+            raise ValueError(
+                f"`ior` must be a number or a sequence of numbers (static), got {ior!r}"
+            ) from err
+        if not values:
+            raise ValueError("`ior` must hold at least one index of refraction")
+    for v in values:
+        if not (math.isfinite(v) and v > 0):
+            raise ValueError(f"`ior` values must be finite and positive, got {values}")
+    return values[0] if isinstance(ior, (int, float)) else values
+
+
+class WaterScene(eqx.Module):
+    """Water with a height-field surface over a flat ground, lit from above.
+
+    The ground (receiver) is ``z = 0``; the water surface is
+    ``z = rest_depth + surface.heights``. Light refracts once, from the medium above
+    (index 1) into the water (index ``ior``), then lands on the ground.
+
+    **Arguments:**
+
+    - `surface`: a `HeightField` (heights in metres).
+    - `light`: a `DirectionalLight`.
+    - `receiver`: a `PlaneReceiver` (the caustic map's grid on the ground).
+    - `rest_depth`: depth of the flat water surface above the ground, metres (> 0).
+    - `ior`: relative index of refraction below/above the surface. A number gives a
+      single-channel image of shape ``(rows, cols)``; a sequence gives one channel per
+      index (dispersion), an image of shape ``(rows, cols, channels)``. Values below 1
+      (a denser medium above) allow total internal reflection, whose photons are lost.
+    - `fresnel`: multiply each photon by the exact unpolarised dielectric transmittance.
+    """
+
+    surface: HeightField
+    light: DirectionalLight
+    receiver: PlaneReceiver
+    rest_depth: Float[Array, ""]
+    ior: float | tuple[float, ...] = eqx.field(static=True)
+    fresnel: bool = eqx.field(static=True)
+
+    def __init__(
+        self,
+        surface: HeightField,
+        light: DirectionalLight,
+        receiver: PlaneReceiver,
+        rest_depth=1.0,
+        *,
+        ior: float | Sequence[float] = 1.333,
+        fresnel: bool = False,
+    ):
+        for name, value, kind in (
+            ("surface", surface, HeightField),
+            ("light", light, DirectionalLight),
+            ("receiver", receiver, PlaneReceiver),
+        ):
+            if not isinstance(value, kind):
+                raise ValueError(f"`{name}` must be a {kind.__name__}, got {type(value).__name__}")
+        self.surface = surface
+        self.light = light
+        self.receiver = receiver
+        self.rest_depth = _check_positive_scalar(rest_depth, "rest_depth")
+        self.ior = _check_ior(ior)
+        self.fresnel = bool(fresnel)
+
+    @property
+    def iors(self) -> tuple[float, ...]:
+        """The indices of refraction as a tuple, one per image channel."""
+        return self.ior if isinstance(self.ior, tuple) else (self.ior,)
+
+    @property
+    def effects(self) -> Effects:
+        """What rendering this scene will trace."""
+        return Effects(
+            refraction=True,
+            reflection=False,
+            fresnel=self.fresnel,
+            total_internal_reflection=min(self.iors) < 1.0,
+            dispersion_channels=len(self.iors),
+            occlusion=False,
+            interfaces=1,
+        )
