@@ -1,13 +1,70 @@
-"""jaxcaustics: differentiable, jit-compiled caustics in JAX."""
+"""jaxcaustics: differentiable, jit-compiled caustics in JAX.
+
+Build a scene (`WaterScene` of a `HeightField`, a `DirectionalLight` and a
+`PlaneReceiver`), then `render` it. The NumPy reference lives in
+`jaxcaustics.reference` and imports no JAX.
+"""
 
 import importlib.metadata
 
+from ._io import (
+    read_exr as read_exr,
+)
+from ._io import (
+    read_image as read_image,
+)
+from ._io import (
+    write_exr as write_exr,
+)
+from ._io import (
+    write_png as write_png,
+)
+from ._io import (
+    write_png_linear16 as write_png_linear16,
+)
+from ._methods.twopass import (
+    TwoPassResult as TwoPassResult,
+)
+from ._methods.twopass import (
+    auto_window as auto_window,
+)
+from ._methods.twopass import (
+    two_pass as two_pass,
+)
+from ._optics import (
+    fresnel_transmittance as fresnel_transmittance,
+)
+from ._optics import (
+    reflect as reflect,
+)
+from ._optics import (
+    refract as refract,
+)
+from ._render import render as render
 from ._scene import (
     DirectionalLight as DirectionalLight,
+)
+from ._scene import (
     Effects as Effects,
+)
+from ._scene import (
     HeightField as HeightField,
+)
+from ._scene import (
     PlaneReceiver as PlaneReceiver,
+)
+from ._scene import (
     WaterScene as WaterScene,
+)
+from ._surface import height_and_gradient as height_and_gradient
+from ._waves import (
+    gaussian_bump as gaussian_bump,
+)
+from ._waves import (
+    sine_sum as sine_sum,
+)
+from ._waves import (
+    wave_heights as wave_heights,
 )
 
 __version__ = importlib.metadata.version("jaxcaustics")

@@ -63,7 +63,9 @@ def _check_extent(extent, name: str) -> Array:
     if _is_concrete(ext):
         e = np.asarray(ext)
         if not (e[1] > e[0] and e[3] > e[2]):
-            raise ValueError(f"`{name}` must have x_max > x_min and y_max > y_min, got {e.tolist()}")
+            raise ValueError(
+                f"`{name}` must have x_max > x_min and y_max > y_min, got {e.tolist()}"
+            )
     return ext
 
 
@@ -92,7 +94,7 @@ class HeightField(eqx.Module):
     """
 
     heights: Float[Array, "rows cols"]
-    extent: Float[Array, "4"]
+    extent: Float[Array, 4]
     boundary: str = eqx.field(static=True)
 
     def __init__(self, heights, extent, boundary: str = "periodic"):
@@ -125,7 +127,7 @@ class DirectionalLight(eqx.Module):
     Use `DirectionalLight.from_angles(zenith_deg, azimuth_deg)` to build one from angles.
     """
 
-    direction: Float[Array, "3"]
+    direction: Float[Array, 3]
 
     def __init__(self, direction):
         d = _as_float_array(direction, "direction")
@@ -154,7 +156,7 @@ class DirectionalLight(eqx.Module):
         return cls([math.sin(z) * math.cos(a), math.sin(z) * math.sin(a), -math.cos(z)])
 
     @property
-    def unit_direction(self) -> Float[Array, "3"]:
+    def unit_direction(self) -> Float[Array, 3]:
         return self.direction / jnp.linalg.norm(self.direction)
 
 
@@ -167,7 +169,7 @@ class PlaneReceiver(eqx.Module):
     - `shape`: ``(rows, cols)`` pixels.
     """
 
-    extent: Float[Array, "4"]
+    extent: Float[Array, 4]
     shape: tuple[int, int] = eqx.field(static=True)
 
     def __init__(self, extent, shape: Sequence[int]):

@@ -1,0 +1,1 @@
+"""Caustic methods; each turns a scene into an irradiance image."""

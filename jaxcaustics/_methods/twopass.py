@@ -1,0 +1,300 @@
+"""Yuksel & Keyser's two-pass caustics for height-field water over a flat ground.
+
+C. Yuksel, J. Keyser, "Fast Real-time Caustics from Height Fields" (2009).
+
+For every caustic-map pixel ``P_G`` the method gathers the light refracted through a
+window of the water surface around the pixel's *illumination centre*
+``P_C = P_G + h L'`` (``L'``: the light refracted by the flat rest surface, ``h``: the
+rest depth). It runs as
+
+- a **pre-pass**: one light sample per caustic-map pixel, spaced by the pixel size on
+  the rest plane around the illumination centres; each sample's ray is intersected with
+  the moving surface (a few Newton steps, `hit_iterations`), refracted, and landed on
+  the ground;
+- **pass 1**: for every pixel, the `samples_x` (N) samples along ``x`` around its
+  illumination centre deposit pixel-sized squares (tent overlaps) into ``M + 1``
+  channels, one per neighbouring pixel along ``y``;
+- **pass 2**: the sum along ``y`` of the channels that belong to each pixel.
+
+The window only sees light that lands within about ``N/2`` pixels (``x``) and ``M/2``
+pixels (``y``) of the illumination centre; what falls outside is reported as the
+missed-flux fraction, and ``samples_x="auto"`` picks the window from the largest
+displacement so nothing is silently lost.
+"""
+
+from __future__ import annotations
+
+import functools
+import math
+from typing import Literal
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+from jaxtyping import Array, Float
+
+from .._optics import fresnel_transmittance, refract
+from .._scene import WaterScene
+from .._surface import height_and_gradient
+
+# Largest automatic window (pixels on each side); beyond it the method is the wrong tool.
+MAX_AUTO_HALF_WINDOW = 32
+
+
+def _tent(u: Array) -> Array:
+    """Overlap length of two unit intervals whose centres are ``u`` apart."""
+    return jnp.maximum(0.0, 1.0 - jnp.abs(u))
+
+
+def _window_fraction(u: Array, half: int) -> Array:
+    """Fraction of a unit tent centred at ``u`` that falls on the ``2 half + 1`` pixels."""
+    return jnp.clip(half + 1.0 - jnp.abs(u), 0.0, 1.0)
+
+
+class PrePass(eqx.Module):
+    """Ground hits of the pre-pass samples (one per caustic-map pixel, padded).
+
+    Shapes are ``(channels, rows + M, cols + N - 1)``: the padded sample grid.
+
+    - `shift_x`, `shift_y`: where each sample lands, relative to the centre of the
+      pixel it lands on under flat water, in pixels.
+    - `flux`: relative flux carried (1 for flat water with Fresnel off; Fresnel
+      transmittance when on; 0 where total internal reflection loses it).
+    """
+
+    shift_x: Float[Array, "channels rows cols"]
+    shift_y: Float[Array, "channels rows cols"]
+    flux: Float[Array, "channels rows cols"]
+
+
+def _surface_hit(scene: WaterScene, cx: Array, cy: Array, d: Array, iterations: int):
+    """Where the ray through rest-plane point ``(cx, cy)`` along ``d`` meets the surface.
+
+    Solves ``g(t) = t d_z - H(c + t d_xy) = 0`` by `iterations` Newton steps from
+    ``t = 0`` (0 steps: the point above ``c``). The slope ``g'`` is kept below
+    ``d_z / 4 < 0`` so that grazing rays over steep waves (several intersections) still
+    take finite steps. All steps but the last run without derivatives; the last step
+    carries them, which gives the implicit-function derivative of the hit at
+    convergence (exact for a converged hit) at the cost of one interpolation.
+    """
+    surface = scene.surface
+
+    def newton_step(t):
+        h, hx, hy = height_and_gradient(surface, cx + t * d[0], cy + t * d[1])
+        slope = jnp.minimum(d[2] - (hx * d[0] + hy * d[1]), 0.25 * d[2])
+        return t - (t * d[2] - h) / jax.lax.stop_gradient(slope)
+
+    t = jnp.zeros_like(cx)
+    for _ in range(iterations - 1):
+        t = jax.lax.stop_gradient(newton_step(t))
+    if iterations > 0:
+        t = newton_step(t)
+    px, py = cx + t * d[0], cy + t * d[1]
+    h, hx, hy = height_and_gradient(surface, px, py)
+    return px, py, scene.rest_depth + h, hx, hy
+
+
+def prepass(scene: WaterScene, half_x: int, half_y: int, iterations: int) -> PrePass:
+    """Trace one sample per caustic-map pixel (padded by the window) to the ground."""
+    rows, cols = scene.receiver.shape
+    x0, _, y0, _ = scene.receiver.extent
+    px, py = scene.receiver.pixel_size
+    dtype = scene.surface.heights.dtype
+    gx = x0 + (jnp.arange(-half_x, cols + half_x, dtype=dtype) + 0.5) * px
+    gy = y0 + (jnp.arange(-half_y, rows + half_y, dtype=dtype) + 0.5) * py
+    gx, gy = jnp.meshgrid(gx, gy)
+    d = scene.light.unit_direction.astype(dtype)
+    up = jnp.array([0.0, 0.0, 1.0], dtype=dtype)
+
+    shifts_x, shifts_y, fluxes = [], [], []
+    for ior in scene.iors:
+        eta = 1.0 / ior
+        # illumination centres: where flat water sends light to the pixel centres
+        flat_t, _ = refract(d, up, eta)
+        offset = scene.rest_depth / flat_t[2]
+        cx, cy = gx + offset * flat_t[0], gy + offset * flat_t[1]
+
+        hx_pos, hy_pos, hz, hx, hy = _surface_hit(scene, cx, cy, d, iterations)
+        normal = jnp.stack([-hx, -hy, jnp.ones_like(hx)], axis=-1)
+        normal = normal / jnp.linalg.norm(normal, axis=-1, keepdims=True)
+        t_dir, tir = refract(jnp.broadcast_to(d, normal.shape), normal, eta)
+        going_down = t_dir[..., 2] < 0.0
+        valid = ~tir & going_down
+        tz = jnp.where(going_down, t_dir[..., 2], -1.0)
+        s = hz / -tz
+        ground_x = hx_pos + s * t_dir[..., 0]
+        ground_y = hy_pos + s * t_dir[..., 1]
+        flux = valid.astype(dtype)
+        if scene.fresnel:
+            cos_i = -jnp.sum(normal * d, axis=-1)
+            flux = flux * fresnel_transmittance(cos_i, eta)
+        shifts_x.append(jnp.where(valid, (ground_x - gx) / px, 0.0))
+        shifts_y.append(jnp.where(valid, (ground_y - gy) / py, 0.0))
+        fluxes.append(flux)
+    return PrePass(jnp.stack(shifts_x), jnp.stack(shifts_y), jnp.stack(fluxes))
+
+
+def _tent_slope(u: Array) -> Array:
+    """Derivative of `_tent` (0 at the kinks' far side and at ``u = 0``)."""
+    return jnp.where(jnp.abs(u) < 1.0, -jnp.sign(u), 0.0)
+
+
+def _pass1(shift_x: Array, shift_y: Array, flux: Array, half_x: int, half_y: int) -> Array:
+    """Pass 1 for one channel: ``(M + 1, rows + M, cols)`` partial sums.
+
+    Channel ``k`` of row ``r`` holds the light that the ``N`` samples of row ``r``
+    around each column send to the pixel ``k - M/2`` rows away.
+    """
+    cols = shift_x.shape[1] - 2 * half_x
+    out = [jnp.zeros(shift_x.shape[:1] + (cols,), shift_x.dtype) for _ in range(2 * half_y + 1)]
+    for dx in range(-half_x, half_x + 1):
+        window = slice(half_x + dx, half_x + dx + cols)
+        wx = flux[:, window] * _tent(shift_x[:, window] + dx)
+        for k in range(2 * half_y + 1):
+            out[k] = out[k] + wx * _tent(shift_y[:, window] - (k - half_y))
+    return jnp.stack(out)
+
+
+def _pass2(partial: Array, half_y: int) -> Array:
+    """Pass 2: each pixel sums its ``M + 1`` channels from the rows they came from."""
+    rows = partial.shape[1] - 2 * half_y
+    image = jnp.zeros((rows, partial.shape[2]), partial.dtype)
+    for k in range(2 * half_y + 1):
+        dy = k - half_y
+        image = image + partial[k, half_y - dy : half_y - dy + rows]
+    return image
+
+
+@functools.partial(jax.custom_jvp, nondiff_argnums=(3, 4))
+def _gather_window(shift_x, shift_y, flux, half_x: int, half_y: int) -> Array:
+    return _pass2(_pass1(shift_x, shift_y, flux, half_x, half_y), half_y)
+
+
+@_gather_window.defjvp
+def _gather_window_jvp(half_x, half_y, primals, tangents):
+    """The same window sums with the tents' slopes, written so that each term is
+    *padded* onto a common grid and cropped once: JAX transposes a pad into a slice, so
+    the reverse pass gathers from the cotangent image instead of padding 49 arrays."""
+    shift_x, shift_y, flux = primals
+    t_x, t_y, t_f = tangents
+    rows, cols = shift_x.shape[0] - 2 * half_y, shift_x.shape[1] - 2 * half_x
+    total = jnp.zeros((rows + 4 * half_y, cols + 4 * half_x), shift_x.dtype)
+    for dx in range(-half_x, half_x + 1):
+        ux = shift_x + dx
+        wx = flux * _tent(ux)
+        t_wx = t_f * _tent(ux) + flux * _tent_slope(ux) * t_x
+        for dy in range(-half_y, half_y + 1):
+            uy = shift_y - dy
+            term = t_wx * _tent(uy) + wx * _tent_slope(uy) * t_y
+            # sample (r, c) reaches pixel (r - M/2 + dy, c - N/2 - dx)
+            pads = ((half_y + dy, half_y - dy), (half_x - dx, half_x + dx))
+            total = total + jnp.pad(term, pads)
+    tangent = total[2 * half_y : 2 * half_y + rows, 2 * half_x : 2 * half_x + cols]
+    return _gather_window(*primals, half_x, half_y), tangent
+
+
+@functools.partial(jax.checkpoint, static_argnums=(3, 4))
+def gather_window(shift_x, shift_y, flux, half_x: int, half_y: int) -> Array:
+    """Passes 1 and 2: the irradiance image ``(rows, cols)`` from the pre-pass samples.
+
+    Sample ``(r, c)`` of the padded grid ``(rows + M, cols + N - 1)`` deposits a
+    pixel-sized square (tent overlaps) centred ``(shift_x, shift_y)`` pixels from the
+    centre of pixel ``(r - M/2, c - N/2)``, onto the pixels of its window. Derivatives
+    (forward and reverse) are hand-written and recomputed in the reverse pass
+    (`jax.checkpoint`) rather than stored, which keeps the gradient cheap.
+    """
+    return _gather_window(shift_x, shift_y, flux, half_x, half_y)
+
+
+class TwoPassResult(eqx.Module):
+    """Output of `two_pass`.
+
+    - `image`: irradiance, ``(rows, cols)`` or ``(rows, cols, channels)``.
+    - `missed_flux_fraction`: per channel, shape ``(channels,)``: the fraction of the
+      incident flux that lands outside the window and is therefore missing from the
+      image.
+    """
+
+    image: Array
+    missed_flux_fraction: Array
+
+
+def _check_window(samples_x, channels_y) -> tuple[int, int]:
+    if not (isinstance(samples_x, int) and samples_x >= 1 and samples_x % 2 == 1):
+        raise ValueError(
+            f"`samples_x` (N) must be an odd positive int or 'auto', got {samples_x!r}"
+        )
+    if not (isinstance(channels_y, int) and channels_y >= 0 and channels_y % 2 == 0):
+        raise ValueError(f"`channels_y` (M) must be an even int >= 0 or 'auto', got {channels_y!r}")
+    return samples_x // 2, channels_y // 2
+
+
+@eqx.filter_jit
+def _two_pass(scene: WaterScene, half_x: int, half_y: int, iterations: int) -> TwoPassResult:
+    pre = prepass(scene, half_x, half_y, iterations)
+    rows, cols = scene.receiver.shape
+    channels = [
+        gather_window(pre.shift_x[c], pre.shift_y[c], pre.flux[c], half_x, half_y)
+        for c in range(len(scene.iors))
+    ]
+    image = jnp.stack(channels, axis=-1) if isinstance(scene.ior, tuple) else channels[0]
+    inner = (slice(None), slice(half_y, half_y + rows), slice(half_x, half_x + cols))
+    in_window = _window_fraction(pre.shift_x[inner], half_x) * _window_fraction(
+        pre.shift_y[inner], half_y
+    )
+    missed = jnp.mean(pre.flux[inner] * (1.0 - in_window), axis=(1, 2))
+    return TwoPassResult(image, missed)
+
+
+@eqx.filter_jit
+def _largest_shift(scene: WaterScene, iterations: int) -> tuple[Array, Array]:
+    pre = prepass(scene, 0, 0, iterations)
+    return jnp.max(jnp.abs(pre.shift_x)), jnp.max(jnp.abs(pre.shift_y))
+
+
+def auto_window(scene: WaterScene, hit_iterations: int = 3) -> tuple[int, int]:
+    """``(N, M)`` just large enough for the scene's largest ray displacement.
+
+    Traces the pre-pass once (needs concrete scene values: call it outside `jit`).
+    """
+    if isinstance(scene.surface.heights, jax.core.Tracer):
+        raise ValueError(
+            "samples_x='auto' needs concrete scene values; under jit/vmap pass integers "
+            "(for example from `auto_window(scene)` computed beforehand)"
+        )
+    sx, sy = (float(v) for v in _largest_shift(scene, hit_iterations))
+    half_x, half_y = (min(MAX_AUTO_HALF_WINDOW, max(1, math.ceil(s - 1e-6))) for s in (sx, sy))
+    return 2 * half_x + 1, 2 * half_y
+
+
+def two_pass(
+    scene: WaterScene,
+    *,
+    samples_x: int | Literal["auto"] = 7,
+    channels_y: int | Literal["auto"] = 6,
+    hit_iterations: int = 3,
+) -> TwoPassResult:
+    """Caustics of `scene` by Yuksel & Keyser's two-pass gather.
+
+    **Arguments:**
+
+    - `scene`: a `WaterScene`.
+    - `samples_x`: N, samples along ``x`` per pixel (odd); ``"auto"`` sizes the window
+      from the largest ray displacement (then `channels_y` is chosen too).
+    - `channels_y`: M, so that ``M + 1`` neighbouring pixels along ``y`` are reached
+      (even); ``"auto"`` as above.
+    - `hit_iterations`: Newton steps to find where each light ray meets the moving
+      surface (0 uses the rest-plane point; oblique light needs 2-4).
+
+    **Returns:** a `TwoPassResult` with the irradiance image and the missed-flux
+    fraction. Jit-compiled; differentiable with respect to every array of the scene
+    (heights, extents, rest depth, light direction).
+    """
+    if not isinstance(scene, WaterScene):
+        raise ValueError(f"`scene` must be a WaterScene, got {type(scene).__name__}")
+    if not (isinstance(hit_iterations, int) and hit_iterations >= 0):
+        raise ValueError(f"`hit_iterations` must be an int >= 0, got {hit_iterations!r}")
+    if samples_x == "auto" or channels_y == "auto":
+        samples_x, channels_y = auto_window(scene, hit_iterations)
+    half_x, half_y = _check_window(samples_x, channels_y)
+    return _two_pass(scene, half_x, half_y, hit_iterations)

@@ -1,0 +1,77 @@
+"""Optics core: vector refraction and reflection, exact dielectric Fresnel transmittance.
+
+All functions act on the last axis (``(..., 3)`` directions) and broadcast. They are
+safe everywhere: at total internal reflection (TIR) and at grazing incidence the values
+*and* gradients are finite (the "double where" pattern: degenerate inputs are replaced
+before a singular operation and the output is selected after it).
+"""
+
+from __future__ import annotations
+
+import jax.numpy as jnp
+from jaxtyping import Array, Bool, Float
+
+
+def _dot(a: Array, b: Array) -> Array:
+    return jnp.sum(a * b, axis=-1)
+
+
+def reflect(direction: Float[Array, "... 3"], normal: Float[Array, "... 3"]) -> Array:
+    """Mirror `direction` about the plane with unit `normal`: ``d - 2 (d.n) n``."""
+    return direction - 2.0 * _dot(direction, normal)[..., None] * normal
+
+
+def _cos_transmitted(cos_i: Array, eta) -> tuple[Array, Array]:
+    """``cos`` of the refracted angle and the TIR mask (shape of `cos_i`)."""
+    k = 1.0 - eta**2 * (1.0 - cos_i**2)
+    tir = k <= 0.0
+    k_safe = jnp.where(tir, 1.0, k)
+    return jnp.where(tir, 0.0, jnp.sqrt(k_safe)), tir
+
+
+def refract(
+    direction: Float[Array, "... 3"], normal: Float[Array, "... 3"], eta
+) -> tuple[Float[Array, "... 3"], Bool[Array, ...]]:
+    """Refract a unit `direction` at a surface with unit `normal` (vector Snell's law).
+
+    **Arguments:**
+
+    - `direction`: unit direction of travel, shape ``(..., 3)``.
+    - `normal`: unit normal, shape ``(..., 3)``, on the side the light comes from
+      (``direction . normal <= 0``); it is flipped where it is not.
+    - `eta`: ratio ``n_incident / n_transmitted`` of the indices of refraction.
+
+    **Returns:** ``(transmitted, tir)``: the unit refracted direction, shape ``(..., 3)``,
+    and the total-internal-reflection mask, shape ``(...)``. Where ``tir`` is true the
+    returned direction is the mirror reflection (finite, and with finite gradients).
+    """
+    cos_i = -_dot(direction, normal)
+    normal = jnp.where((cos_i < 0.0)[..., None], -normal, normal)
+    cos_i = jnp.abs(cos_i)
+    cos_t, tir = _cos_transmitted(cos_i, eta)
+    transmitted = eta * direction + (eta * cos_i - cos_t)[..., None] * normal
+    return jnp.where(tir[..., None], reflect(direction, normal), transmitted), tir
+
+
+def fresnel_transmittance(cos_i: Float[Array, ...], eta) -> Float[Array, ...]:
+    """Exact unpolarised dielectric Fresnel transmittance ``1 - (R_s + R_p) / 2``.
+
+    **Arguments:**
+
+    - `cos_i`: cosine of the angle of incidence (``>= 0``), any shape.
+    - `eta`: ``n_incident / n_transmitted``.
+
+    **Returns:** the transmitted fraction of power, in ``[0, 1]``; 0 at total internal
+    reflection and at grazing incidence.
+    """
+    cos_i = jnp.abs(cos_i)
+    cos_t, tir = _cos_transmitted(cos_i, eta)
+    # R_s and R_p with indices (eta, 1): n1 cos_i vs n2 cos_t, scaled by 1/n2.
+    s_num, s_den = eta * cos_i - cos_t, eta * cos_i + cos_t
+    p_num, p_den = eta * cos_t - cos_i, eta * cos_t + cos_i
+    # both denominators vanish only when cos_i = cos_t = 0 (grazing, nothing transmitted)
+    degenerate = (s_den <= 0.0) | (p_den <= 0.0) | tir
+    s_den = jnp.where(degenerate, 1.0, s_den)
+    p_den = jnp.where(degenerate, 1.0, p_den)
+    r = 0.5 * ((s_num / s_den) ** 2 + (p_num / p_den) ** 2)
+    return jnp.where(degenerate, 0.0, 1.0 - r)
