@@ -1,0 +1,79 @@
+"""Scene types: validation before compilation, effects, pytree behaviour."""
+
+import jax
+import numpy as np
+import pytest
+
+import jaxcaustics as jc
+
+EXT = (0.0, 1.0, 0.0, 1.0)
+
+
+def _scene(**over):
+    kw = dict(
+        surface=jc.HeightField(np.zeros((8, 8)), EXT),
+        light=jc.DirectionalLight.from_angles(20.0),
+        receiver=jc.PlaneReceiver(EXT, (8, 8)),
+        rest_depth=1.0,
+    )
+    kw.update(over)
+    return jc.WaterScene(**kw)
+
+
+@pytest.mark.parametrize(
+    "make, match",
+    [
+        (lambda: jc.HeightField(np.zeros(8), EXT), "heights"),
+        (lambda: jc.HeightField(np.zeros((2, 3, 4)), EXT), "heights"),
+        (lambda: jc.HeightField(np.full((4, 4), np.nan), EXT), "heights"),
+        (lambda: jc.HeightField(np.zeros((4, 4)), (0, 1, 0)), "extent"),
+        (lambda: jc.HeightField(np.zeros((4, 4)), (1, 0, 0, 1)), "extent"),
+        (lambda: jc.HeightField(np.zeros((4, 4)), EXT, boundary="mirror"), "boundary"),
+        (lambda: jc.HeightField([["a", "b"], ["c", "d"]], EXT), "heights"),
+        (lambda: jc.DirectionalLight([0.0, 0.0, 0.0]), "direction"),
+        (lambda: jc.DirectionalLight([0.0, 0.2, 1.0]), "direction"),
+        (lambda: jc.DirectionalLight([1.0, 0.0, 0.0]), "direction"),
+        (lambda: jc.DirectionalLight([0.0, 0.0, np.nan]), "direction"),
+        (lambda: jc.DirectionalLight.from_angles(95.0), "zenith_deg"),
+        (lambda: jc.PlaneReceiver(EXT, (0, 8)), "shape"),
+        (lambda: jc.PlaneReceiver(EXT, (8,)), "shape"),
+        (lambda: _scene(rest_depth=0.0), "rest_depth"),
+        (lambda: _scene(rest_depth=-1.0), "rest_depth"),
+        (lambda: _scene(rest_depth=np.nan), "rest_depth"),
+        (lambda: _scene(ior=-1.333), "ior"),
+        (lambda: _scene(ior=()), "ior"),
+        (lambda: _scene(surface=np.zeros((8, 8))), "surface"),
+    ],
+)
+def test_bad_input_names_the_argument(make, match):
+    with pytest.raises(ValueError, match=match):
+        make()
+
+
+def test_render_rejects_bad_knobs():
+    scene = _scene()
+    with pytest.raises(ValueError, match="samples_x"):
+        jc.render(scene, samples_x=4)
+    with pytest.raises(ValueError, match="channels_y"):
+        jc.render(scene, channels_y=3)
+    with pytest.raises(ValueError, match="hit_iterations"):
+        jc.render(scene, hit_iterations=-1)
+    with pytest.raises(ValueError, match="method"):
+        jc.render(scene, method="raytrace")
+
+
+def test_effects_describe_what_is_traced():
+    fx = _scene().effects
+    assert fx.refraction and not fx.fresnel and not fx.total_internal_reflection
+    assert fx.dispersion_channels == 1 and fx.interfaces == 1 and not fx.occlusion
+    fx = _scene(ior=(1.33, 1.34, 0.9), fresnel=True).effects
+    assert fx.fresnel and fx.total_internal_reflection and fx.dispersion_channels == 3
+
+
+def test_scene_is_a_pytree_with_static_configuration():
+    scene = _scene(ior=(1.33, 1.34), fresnel=True)
+    leaves = jax.tree_util.tree_leaves(scene)
+    # heights, surface extent, light direction, receiver extent, rest depth
+    assert len(leaves) == 5
+    rebuilt = jax.tree_util.tree_map(lambda x: x * 1, scene)
+    assert rebuilt.ior == (1.33, 1.34) and rebuilt.fresnel and rebuilt.receiver.shape == (8, 8)
