@@ -1,0 +1,319 @@
+"""Two-pass caustics: what accuracy costs in time.
+
+Measures, on this machine's default JAX device:
+
+1. forward and gradient-of-a-scalar-loss time at 400x300 and 800x600 (N = 7, M = 6):
+   median of repeated runs after compilation (``block_until_ready``), compile time
+   reported apart;
+2. error against the NumPy reference as the window (N, M) grows, on a scene whose rays
+   move up to ~9 pixels, with the time of each setting;
+3. error and time as the number of Newton steps for the surface hit grows, under
+   oblique light (60 degrees);
+4. the reference's own error and time as its photon count grows, so a row of (2) can be
+   matched with the reference time needed for the same error.
+
+Writes ``benchmarks/results/twopass.md`` (tables) and ``twopass_error_vs_time.png``.
+
+    python benchmarks/bench_twopass.py            # full run (a few minutes on 2 cores)
+    python benchmarks/bench_twopass.py --quick    # tiny sizes, to check it runs
+"""
+
+from __future__ import annotations
+
+import argparse
+import statistics
+import time
+from pathlib import Path
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+from scipy.ndimage import gaussian_filter
+
+import jaxcaustics as jc
+from jaxcaustics import reference
+
+RESULTS = Path(__file__).parent / "results"
+
+
+def rel_l1(image, ref, sigma=1.0) -> float:
+    """Relative L1 error after a Gaussian blur of `sigma` pixels (periodic)."""
+    a = gaussian_filter(np.asarray(image, float), sigma, mode="wrap")
+    b = gaussian_filter(np.asarray(ref, float), sigma, mode="wrap")
+    return float(np.abs(a - b).sum() / np.abs(b).sum())
+
+
+def timed(fn, *args, repeats=7) -> tuple[float, float]:
+    """(compile + first run seconds, median seconds of `repeats` runs after that)."""
+    start = time.perf_counter()
+    jax.block_until_ready(fn(*args))
+    first = time.perf_counter() - start
+    times = []
+    for _ in range(repeats):
+        start = time.perf_counter()
+        jax.block_until_ready(fn(*args))
+        times.append(time.perf_counter() - start)
+    return first, statistics.median(times)
+
+
+def wave_scene(shape, *, zenith=30.0, extent=(0.0, 4.0, 0.0, 3.0)):
+    heights = jc.wave_heights(shape, extent, 0.0, amplitude=0.01, seed=1)
+    return jc.WaterScene(
+        jc.HeightField(np.asarray(heights, np.float32), np.float32(extent)),
+        jc.DirectionalLight(np.float32(jc.DirectionalLight.from_angles(zenith, 30.0).direction)),
+        jc.PlaneReceiver(np.float32(extent), shape),
+        np.float32(1.0),
+    )
+
+
+def speed_table(sizes, repeats) -> list[dict]:
+    rows = []
+    for cols, rows_ in sizes:
+        scene = wave_scene((rows_, cols))
+
+        @jax.jit
+        def forward(scene):
+            return jc.render(scene, samples_x=7, channels_y=6, hit_iterations=3)
+
+        @jax.jit
+        def gradient(heights, scene):
+            s = eqx.tree_at(lambda s: s.surface.heights, scene, heights)
+            return jax.grad(
+                lambda h: jnp.mean(
+                    (forward(eqx.tree_at(lambda s: s.surface.heights, s, h)) - 1.0) ** 2
+                )
+            )(heights)
+
+        f_first, f_med = timed(forward, scene, repeats=repeats)
+        g_first, g_med = timed(gradient, scene.surface.heights, scene, repeats=repeats)
+        rows.append(
+            dict(
+                size=f"{cols}x{rows_}",
+                fwd_ms=1e3 * f_med,
+                fwd_compile_s=f_first - f_med,
+                grad_ms=1e3 * g_med,
+                grad_compile_s=g_first - g_med,
+                ratio=g_med / f_med,
+            )
+        )
+        print(rows[-1], flush=True)
+    return rows
+
+
+def focusing_scene(size):
+    """A bump focusing 1.1 m below a 3 m deep surface: rays move up to ~9 pixels."""
+    extent = (0.0, 1.0, 0.0, 1.0)
+    heights = jc.gaussian_bump((size, size), extent, sigma=0.1, amplitude=0.03)
+    return jc.WaterScene(
+        jc.HeightField(heights, extent),
+        jc.DirectionalLight.from_angles(0.0),
+        jc.PlaneReceiver(extent, (size, size)),
+        3.0,
+    )
+
+
+def window_table(scene, truth, windows, repeats) -> list[dict]:
+    rows = []
+    for n, m in windows:
+        if n == "auto":
+            n, m = jc.auto_window(scene)
+        fn = jax.jit(lambda s, n=n, m=m: jc.render(s, samples_x=n, channels_y=m, return_stats=True))
+        first, med = timed(fn, scene, repeats=repeats)
+        image, stats = fn(scene)
+        rows.append(
+            dict(
+                N=n,
+                M=m,
+                error=rel_l1(image, truth),
+                time_ms=1e3 * med,
+                compile_s=first - med,
+                missed=float(stats["missed_flux_fraction"][0]),
+            )
+        )
+        print(rows[-1], flush=True)
+    return rows
+
+
+def iteration_table(scene, truth, iterations, repeats) -> list[dict]:
+    rows = []
+    for k in iterations:
+        fn = jax.jit(lambda s, k=k: jc.render(s, hit_iterations=k))
+        _, med = timed(fn, scene, repeats=repeats)
+        rows.append(dict(hit_iterations=k, error=rel_l1(fn(scene), truth), time_ms=1e3 * med))
+        print(rows[-1], flush=True)
+    return rows
+
+
+def reference_table(scene, truth, photon_counts) -> list[dict]:
+    rows = []
+    for p in photon_counts:
+        start = time.perf_counter()
+        image = reference.trace_water(scene, photons_per_axis=p)
+        rows.append(
+            dict(
+                photons_per_axis=p,
+                error=rel_l1(image, truth),
+                time_ms=1e3 * (time.perf_counter() - start),
+            )
+        )
+        print(rows[-1], flush=True)
+    return rows
+
+
+def reference_time_at(error, ref_rows) -> float | None:
+    """Reference time for `error`, interpolated in log-log between measured counts."""
+    pts = sorted((r["error"], r["time_ms"]) for r in ref_rows)
+    for (e0, t0), (e1, t1) in zip(pts, pts[1:], strict=False):
+        if e0 <= error <= e1:
+            w = np.log(error / e0) / np.log(e1 / e0)
+            return float(np.exp(np.log(t0) + w * (np.log(t1) - np.log(t0))))
+    return None
+
+
+def markdown(rows, columns, fmt) -> str:
+    head = "| " + " | ".join(columns) + " |\n|" + "---|" * len(columns) + "\n"
+    body = "".join(
+        "| "
+        + " | ".join(
+            fmt.get(c, "{}").format(r[c]) if r.get(c) is not None else "-" for c in columns
+        )
+        + " |\n"
+        for r in rows
+    )
+    return head + body
+
+
+def plot(window_rows, ref_rows, iter_rows, path):
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(6, 4))
+    ax.loglog(
+        [r["time_ms"] for r in window_rows],
+        [r["error"] for r in window_rows],
+        "o-",
+        label="two-pass, N = 3 ... auto",
+    )
+    for r in window_rows:
+        ax.annotate(
+            f"N={r['N']}",
+            (r["time_ms"], r["error"]),
+            fontsize=7,
+            textcoords="offset points",
+            xytext=(4, 2),
+        )
+    ax.loglog(
+        [r["time_ms"] for r in ref_rows],
+        [r["error"] for r in ref_rows],
+        "s--",
+        label="NumPy reference, photons/pixel = p^2",
+    )
+    for r in ref_rows:
+        ax.annotate(
+            f"p={r['photons_per_axis']}",
+            (r["time_ms"], r["error"]),
+            fontsize=7,
+            textcoords="offset points",
+            xytext=(4, 2),
+        )
+    ax.set_xlabel("time per image [ms] (median after compilation)")
+    ax.set_ylabel("relative L1 error vs reference (1 px blur)")
+    ax.set_title("Two-pass caustics: error against time")
+    ax.grid(True, which="both", alpha=0.3)
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def main(argv=None) -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--quick", action="store_true", help="tiny sizes, to check it runs")
+    parser.add_argument("--output", type=Path, default=RESULTS)
+    args = parser.parse_args(argv)
+    args.output.mkdir(parents=True, exist_ok=True)
+
+    if args.quick:
+        sizes, size, repeats, truth_p = [(40, 30)], 32, 2, 8
+        windows, iters, ref_counts = [(3, 2), (7, 6), ("auto", "auto")], [0, 3], [1, 2]
+    else:
+        sizes, size, repeats, truth_p = [(400, 300), (800, 600)], 128, 15, 32
+        windows = [(3, 2), (5, 4), (7, 6), (9, 8), (11, 10), (13, 12), (15, 14), ("auto", "auto")]
+        iters, ref_counts = [0, 1, 2, 3, 5], [1, 2, 3, 4, 6, 8, 12]
+
+    print(f"device: {jax.devices()[0]}", flush=True)
+    speed = speed_table(sizes, repeats)
+
+    scene = focusing_scene(size)
+    truth = reference.trace_water(scene, photons_per_axis=truth_p)
+    window_rows = window_table(scene, truth, windows, repeats)
+    ref_rows = reference_table(scene, truth, ref_counts)
+    for r in window_rows:
+        r["ref_ms_same_error"] = reference_time_at(r["error"], ref_rows)
+
+    oblique = jc.WaterScene(
+        jc.HeightField(
+            jc.sine_sum(
+                (size, size), (0.0, 1.0, 0.0, 1.0), terms=((2, 1, 0.006, 0.0), (1, 3, 0.0045, 1.0))
+            ),
+            (0.0, 1.0, 0.0, 1.0),
+        ),
+        jc.DirectionalLight.from_angles(60.0, 10.0),
+        jc.PlaneReceiver((0.0, 1.0, 0.0, 1.0), (size, size)),
+        0.5,
+    )
+    oblique_truth = reference.trace_water(oblique, photons_per_axis=truth_p)
+    iter_rows = iteration_table(oblique, oblique_truth, iters, repeats)
+
+    text = [
+        "# Two-pass caustics benchmark\n",
+        f"Device: `{jax.devices()[0]}`; float32; median of {repeats} runs after compilation.\n",
+        "\n## Speed (N = 7, M = 6, 3 Newton steps; a periodic sea at 30 degrees)\n\n",
+        markdown(
+            speed,
+            ["size", "fwd_ms", "grad_ms", "ratio", "fwd_compile_s", "grad_compile_s"],
+            {
+                "fwd_ms": "{:.1f}",
+                "grad_ms": "{:.1f}",
+                "ratio": "{:.2f}",
+                "fwd_compile_s": "{:.2f}",
+                "grad_compile_s": "{:.2f}",
+            },
+        ),
+        f"\n## Error against the window ({size}x{size}, focusing bump, rays move up to ~9 px;"
+        f" truth: reference with {truth_p}^2 photons per pixel)\n\n",
+        markdown(
+            window_rows,
+            ["N", "M", "error", "missed", "time_ms", "compile_s", "ref_ms_same_error"],
+            {
+                "error": "{:.4f}",
+                "missed": "{:.4f}",
+                "time_ms": "{:.2f}",
+                "compile_s": "{:.2f}",
+                "ref_ms_same_error": "{:.0f}",
+            },
+        ),
+        "\n## The reference's own error against its photon count\n\n",
+        markdown(
+            ref_rows,
+            ["photons_per_axis", "error", "time_ms"],
+            {"error": "{:.4f}", "time_ms": "{:.0f}"},
+        ),
+        f"\n## Newton steps for the surface hit (60 degrees, {size}x{size}, N = 7, M = 6)\n\n",
+        markdown(
+            iter_rows,
+            ["hit_iterations", "error", "time_ms"],
+            {"error": "{:.4f}", "time_ms": "{:.2f}"},
+        ),
+    ]
+    (args.output / "twopass.md").write_text("".join(text))
+    plot(window_rows, ref_rows, iter_rows, args.output / "twopass_error_vs_time.png")
+    print("".join(text))
+    print(f"wrote {args.output / 'twopass.md'} and twopass_error_vs_time.png")
+
+
+if __name__ == "__main__":
+    main()
