@@ -29,9 +29,32 @@ def _cos_transmitted(cos_i: Array, eta) -> tuple[Array, Array]:
     return jnp.where(tir, 0.0, jnp.sqrt(k_safe)), tir
 
 
+def refract_components(direction, normal, eta):
+    """`refract` on components: `direction` and `normal` are 3-tuples of arrays.
+
+    The kernel behind `refract`. Working on separate ``x, y, z`` arrays (rather than a
+    trailing axis of 3) lets XLA fuse whole-image refraction into one loop.
+
+    **Returns:** ``(transmitted, tir, cos_i)``: a 3-tuple of arrays, the TIR mask and
+    the cosine of the angle of incidence (``>= 0``).
+    """
+    dot = sum(d * n for d, n in zip(direction, normal, strict=True))
+    flip = dot > 0.0  # normal on the far side: use its opposite
+    normal = tuple(jnp.where(flip, -n, n) for n in normal)
+    cos_i = jnp.abs(dot)
+    cos_t, tir = _cos_transmitted(cos_i, eta)
+    scale = eta * cos_i - cos_t
+    two_cos = 2.0 * cos_i
+    transmitted = tuple(
+        jnp.where(tir, d + two_cos * n, eta * d + scale * n)
+        for d, n in zip(direction, normal, strict=True)
+    )
+    return transmitted, tir, cos_i
+
+
 def refract(
     direction: Float[Array, "... 3"], normal: Float[Array, "... 3"], eta
-) -> tuple[Float[Array, "... 3"], Bool[Array, ...]]:
+) -> tuple[Float[Array, "... 3"], Bool[Array, "..."]]:
     """Refract a unit `direction` at a surface with unit `normal` (vector Snell's law).
 
     **Arguments:**
@@ -45,12 +68,11 @@ def refract(
     and the total-internal-reflection mask, shape ``(...)``. Where ``tir`` is true the
     returned direction is the mirror reflection (finite, and with finite gradients).
     """
-    cos_i = -_dot(direction, normal)
-    normal = jnp.where((cos_i < 0.0)[..., None], -normal, normal)
-    cos_i = jnp.abs(cos_i)
-    cos_t, tir = _cos_transmitted(cos_i, eta)
-    transmitted = eta * direction + (eta * cos_i - cos_t)[..., None] * normal
-    return jnp.where(tir[..., None], reflect(direction, normal), transmitted), tir
+    direction, normal = jnp.broadcast_arrays(direction, normal)
+    transmitted, tir, _ = refract_components(
+        tuple(jnp.moveaxis(direction, -1, 0)), tuple(jnp.moveaxis(normal, -1, 0)), eta
+    )
+    return jnp.stack(transmitted, axis=-1), tir
 
 
 def fresnel_transmittance(cos_i: Float[Array, ...], eta) -> Float[Array, ...]:

@@ -23,7 +23,9 @@ def x64():
 def test_shape_dtype_rms_and_mean():
     for t in (0.0, 0.7, 13.0):
         h = wave_heights(SHAPE, EXTENT, t, amplitude=0.03)
-        assert h.shape == SHAPE and h.dtype == jnp.float32
+        assert h.shape == SHAPE and h.dtype == jnp.result_type(
+            float
+        )  # float64 under the suite-wide x64
         h = np.asarray(h, np.float64)
         # Every wave is below Nyquist, so the grid RMS is the continuous one exactly.
         assert math.sqrt(np.mean(h**2)) == pytest.approx(0.03, rel=1e-5)

@@ -33,7 +33,7 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Float
 
-from .._optics import fresnel_transmittance, refract
+from .._optics import fresnel_transmittance, refract, refract_components
 from .._scene import WaterScene
 from .._surface import height_and_gradient
 
@@ -114,19 +114,17 @@ def prepass(scene: WaterScene, half_x: int, half_y: int, iterations: int) -> Pre
         offset = scene.rest_depth / flat_t[2]
         cx, cy = gx + offset * flat_t[0], gy + offset * flat_t[1]
 
-        hx_pos, hy_pos, hz, hx, hy = _surface_hit(scene, cx, cy, d, iterations)
-        normal = jnp.stack([-hx, -hy, jnp.ones_like(hx)], axis=-1)
-        normal = normal / jnp.linalg.norm(normal, axis=-1, keepdims=True)
-        t_dir, tir = refract(jnp.broadcast_to(d, normal.shape), normal, eta)
-        going_down = t_dir[..., 2] < 0.0
+        hit_x, hit_y, hit_z, hx, hy = _surface_hit(scene, cx, cy, d, iterations)
+        inv_norm = jax.lax.rsqrt(1.0 + hx * hx + hy * hy)
+        normal = (-hx * inv_norm, -hy * inv_norm, inv_norm)
+        t_dir, tir, cos_i = refract_components((d[0], d[1], d[2]), normal, eta)
+        going_down = t_dir[2] < 0.0
         valid = ~tir & going_down
-        tz = jnp.where(going_down, t_dir[..., 2], -1.0)
-        s = hz / -tz
-        ground_x = hx_pos + s * t_dir[..., 0]
-        ground_y = hy_pos + s * t_dir[..., 1]
+        s = hit_z / -jnp.where(going_down, t_dir[2], -1.0)
+        ground_x = hit_x + s * t_dir[0]
+        ground_y = hit_y + s * t_dir[1]
         flux = valid.astype(dtype)
         if scene.fresnel:
-            cos_i = -jnp.sum(normal * d, axis=-1)
             flux = flux * fresnel_transmittance(cos_i, eta)
         shifts_x.append(jnp.where(valid, (ground_x - gx) / px, 0.0))
         shifts_y.append(jnp.where(valid, (ground_y - gy) / py, 0.0))

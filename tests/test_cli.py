@@ -1,0 +1,145 @@
+"""The ``jaxcaustics`` command: ``render water`` end to end, argument errors, --version."""
+
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import jaxcaustics as jc
+from jaxcaustics._cli import main
+
+TINY = ["--size", "48x36"]  # 48 x 36 pixels over the default 4 x 3 m
+
+
+def test_render_water_frames(tmp_path, capsys):
+    out = tmp_path / "frames"
+    assert main(["render", "water", *TINY, "--frames", "2", "--output", str(out)]) == 0
+    names = sorted(p.name for p in out.iterdir())
+    assert names == [
+        "caustics_0000.exr",
+        "caustics_0000.png",
+        "caustics_0001.exr",
+        "caustics_0001.png",
+    ]
+    frames = [jc.read_exr(out / f"caustics_{k:04d}.exr") for k in range(2)]
+    for image in frames:
+        assert image.shape == (36, 48) and image.dtype == np.float32
+        assert np.all(np.isfinite(image)) and image.min() >= 0.0
+        # Periodic sea, automatic window (no light missed), Fresnel off: every photon
+        # lands in the image, so the mean relative irradiance is 1 up to float32 sums.
+        assert image.mean() == pytest.approx(1.0, abs=1e-3)
+        assert image.std() > 0.01  # the waves do focus light
+    assert not np.array_equal(frames[0], frames[1])  # the sea moves between frames
+    png = jc.read_image(out / "caustics_0000.png")
+    assert png.shape == (36, 48) and png.max() > 0.5
+    report = capsys.readouterr()
+    assert "N = " in report.out and "M = " in report.out
+    assert "missed flux" in report.out and "ms/frame" in report.out
+    assert "caustics_0001.exr" in report.out
+    assert "WARNING" not in report.err
+
+
+def test_small_window_warns_about_missed_flux(tmp_path, capsys):
+    argv = ["render", "water", "--size", "24x18", "--amplitude", "0.05", "--output", str(tmp_path)]
+    assert main([*argv, "--samples-x", "1", "--channels-y", "0", "--exposure", "0.5"]) == 0
+    report = capsys.readouterr()
+    assert "N = 1" in report.out and "M = 0" in report.out
+    assert "WARNING" in report.err and "--samples-x auto" in report.err
+    assert jc.read_exr(tmp_path / "caustics_0000.exr").mean() < 0.99  # light was lost
+
+
+def test_dispersion_gives_colour_and_fresnel_loses_light(tmp_path):
+    argv = ["render", "water", "--size", "24x18", "--output", str(tmp_path), "--quiet"]
+    argv += ["--extent", "2x1.5", "--heightfield-size", "32x24", "--zenith", "0"]
+    assert main([*argv, "--ior", "1.331,1.335,1.340", "--fresnel"]) == 0
+    image = jc.read_exr(tmp_path / "caustics_0000.exr")
+    assert image.shape == (18, 24, 3)
+    # Fresnel reflects about 2% at near-normal incidence on water.
+    assert np.all((image.mean(axis=(0, 1)) > 0.95) & (image.mean(axis=(0, 1)) < 0.995))
+    assert jc.read_image(tmp_path / "caustics_0000.png", as_gray=False).shape == (18, 24, 3)
+
+
+@pytest.mark.parametrize(
+    "argv",
+    [
+        [],
+        ["render"],
+        ["render", "pool"],
+        ["render", "water", "--size", "10"],
+        ["render", "water", "--size", "1x10"],
+        ["render", "water", "--extent", "4x-3"],
+        ["render", "water", "--zenith", "95"],
+        ["render", "water", "--depth", "0"],
+        ["render", "water", "--amplitude", "nan"],
+        ["render", "water", "--ior", "1.3,1.4"],
+        ["render", "water", "--ior", "-1"],
+        ["render", "water", "--samples-x", "6"],
+        ["render", "water", "--channels-y", "3"],
+        ["render", "water", "--frames", "0"],
+        ["render", "water", "--bogus"],
+    ],
+)
+def test_bad_arguments_exit_with_usage(argv, capsys):
+    with pytest.raises(SystemExit) as exc:
+        main(argv)
+    assert exc.value.code == 2
+    assert "error:" in capsys.readouterr().err
+
+
+def test_errors_after_parsing_are_one_line(tmp_path, capsys, monkeypatch):
+    blocker = tmp_path / "a_file"
+    blocker.write_text("")
+    assert main(["render", "water", "--output", str(blocker)]) == 2
+    err = capsys.readouterr().err
+    assert "cannot create the output directory" in err and "Traceback" not in err
+
+    def bad_render(*args, **kwargs):
+        raise ValueError("`heights` contains NaN or infinite values")
+
+    monkeypatch.setattr(jc, "render", bad_render)
+    assert main(["render", "water", *TINY, "--samples-x", "3", "--output", str(tmp_path)]) == 2
+    err = capsys.readouterr().err
+    assert err.strip() == "jaxcaustics: error: `heights` contains NaN or infinite values"
+
+
+def test_version(capsys):
+    with pytest.raises(SystemExit) as exc:
+        main(["--version"])
+    assert exc.value.code == 0
+    assert capsys.readouterr().out.strip() == f"jaxcaustics {jc.__version__}"
+
+
+def _console_script() -> list[str]:
+    """The installed ``jaxcaustics`` script (next to this Python, or on PATH), else
+    ``python -m jaxcaustics``."""
+    local = Path(sys.executable).parent / "jaxcaustics"
+    if local.exists():
+        return [str(local)]
+    found = shutil.which("jaxcaustics")
+    return [found] if found else [sys.executable, "-m", "jaxcaustics"]
+
+
+def test_console_script_renders(tmp_path):
+    cmd = [*_console_script(), "render", "water", "--size", "16x12", "--output", str(tmp_path)]
+    run = subprocess.run(cmd, capture_output=True, text=True, timeout=120)
+    assert run.returncode == 0, run.stderr
+    assert "missed flux" in run.stdout
+    assert jc.read_exr(tmp_path / "caustics_0000.exr").shape == (12, 16)
+    run = subprocess.run(
+        [sys.executable, "-m", "jaxcaustics", "--version"], capture_output=True, text=True
+    )
+    assert run.returncode == 0 and run.stdout.strip() == f"jaxcaustics {jc.__version__}"
+
+
+def test_readme_python_example_runs(tmp_path, monkeypatch):
+    readme = (Path(__file__).resolve().parent.parent / "README.md").read_text()
+    code = readme.split("```python\n", 1)[1].split("```", 1)[0]
+    monkeypatch.chdir(tmp_path)
+    namespace: dict = {}
+    exec(compile(code, "README.md", "exec"), namespace)
+    assert namespace["image"].shape == (300, 400)
+    assert float(namespace["stats"]["missed_flux_fraction"][0]) < 1e-6  # "(here 0)"
+    assert (tmp_path / "caustics.png").is_file()
