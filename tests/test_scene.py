@@ -58,6 +58,8 @@ def test_render_rejects_bad_knobs():
         jc.render(scene, channels_y=3)
     with pytest.raises(ValueError, match="hit_iterations"):
         jc.render(scene, hit_iterations=-1)
+    with pytest.raises(ValueError, match="supersample"):
+        jc.render(scene, supersample=0)
     with pytest.raises(ValueError, match="method"):
         jc.render(scene, method="raytrace")
 

@@ -76,6 +76,20 @@ def test_agrees_with_reference_on_smooth_surfaces(surface, tolerance, zenith):
     assert rel_l1(jc.render(scene), ref) < tolerance
 
 
+def test_supersampling_tightens_the_error():
+    """S x S samples per pixel remove the one-sample-per-pixel ripple.
+
+    Measured on the sum of sines at 30 degrees: 0.0153 (S = 1), 0.0041 (S = 2),
+    0.0032 (S = 3); without blur 0.050, 0.027, 0.018.
+    """
+    scene = make_scene(sines(), EXT, zenith=30.0, azimuth=20.0)
+    ref = reference.trace_water(scene, photons_per_axis=16)
+    errors = [rel_l1(jc.render(scene, supersample=s), ref) for s in (1, 2, 3)]
+    assert errors[0] > 2 * errors[1] > 2 * 0.9 * errors[2] and errors[2] < 0.006, errors
+    flat = make_scene(np.zeros((12, 16)), EXT, zenith=45.0)
+    np.testing.assert_allclose(np.asarray(jc.render(flat, supersample=3)), 1.0, atol=1e-12)
+
+
 def test_heightfield_resolution_need_not_match_the_caustic_map():
     """A 24 x 40 height field on a 48 x 64 caustic map (both sample the same interpolant)."""
     heights = sines((24, 40))
@@ -276,10 +290,10 @@ def test_effects_a_scene_does_not_call_for_are_not_traced(monkeypatch):
     heights = sines((9, 11))
     off = make_scene(heights, shape=(9, 11), zenith=20.0)
     on = make_scene(heights, shape=(9, 11), zenith=20.0, fresnel=True)
-    jaxpr_off = jax.make_jaxpr(lambda s: twopass.prepass(s, 1, 1, 2))(off)
+    jaxpr_off = jax.make_jaxpr(lambda s: twopass.prepass(s, 1, 1, 2, 1))(off)
     assert calls == []
-    jaxpr_on = jax.make_jaxpr(lambda s: twopass.prepass(s, 1, 1, 2))(on)
+    jaxpr_on = jax.make_jaxpr(lambda s: twopass.prepass(s, 1, 1, 2, 1))(on)
     assert calls == [1]
     assert len(jaxpr_on.jaxpr.eqns) > len(jaxpr_off.jaxpr.eqns)
     # and a single index of refraction traces one channel
-    assert jax.eval_shape(lambda s: twopass.prepass(s, 1, 1, 2), off).flux.shape[0] == 1
+    assert jax.eval_shape(lambda s: twopass.prepass(s, 1, 1, 2, 1), off).flux.shape[0] == 1
