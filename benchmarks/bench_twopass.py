@@ -101,16 +101,34 @@ def speed_table(sizes, repeats) -> list[dict]:
     return rows
 
 
+UNIT = (0.0, 1.0, 0.0, 1.0)
+
+
+def unit_scene(heights, depth, zenith=0.0, azimuth=0.0):
+    """A 1 x 1 m periodic scene whose caustic map matches the height field."""
+    return jc.WaterScene(
+        jc.HeightField(heights, UNIT),
+        jc.DirectionalLight.from_angles(zenith, azimuth),
+        jc.PlaneReceiver(UNIT, heights.shape),
+        depth,
+    )
+
+
 def focusing_scene(size):
     """A bump focusing 1.1 m below a 3 m deep surface: rays move up to ~9 pixels."""
-    extent = (0.0, 1.0, 0.0, 1.0)
-    heights = jc.gaussian_bump((size, size), extent, sigma=0.1, amplitude=0.03)
-    return jc.WaterScene(
-        jc.HeightField(heights, extent),
-        jc.DirectionalLight.from_angles(0.0),
-        jc.PlaneReceiver(extent, (size, size)),
-        3.0,
-    )
+    return unit_scene(jc.gaussian_bump((size, size), UNIT, sigma=0.1, amplitude=0.03), 3.0)
+
+
+def oblique_scene(size):
+    """Two crossing sine waves under light 60 degrees from vertical, 0.5 m deep."""
+    terms = ((2, 1, 0.006, 0.0), (1, 3, 0.0045, 1.0))
+    return unit_scene(jc.sine_sum((size, size), UNIT, terms=terms), 0.5, 60.0, 10.0)
+
+
+def ripple_scene(size):
+    """Waves with caustic lines a few pixels wide, where one sample per pixel ripples."""
+    terms = ((5, 2, 0.002, 0.0), (3, 6, 0.0015, 1.0))
+    return unit_scene(jc.sine_sum((size, size), UNIT, terms=terms), 0.5, 30.0, 20.0)
 
 
 def window_table(scene, truth, windows, repeats) -> list[dict]:
@@ -135,12 +153,21 @@ def window_table(scene, truth, windows, repeats) -> list[dict]:
     return rows
 
 
-def iteration_table(scene, truth, iterations, repeats) -> list[dict]:
+def knob_table(scene, truth, knob, values, repeats) -> list[dict]:
+    """Error (1 px blur and none) and time of `render` as one knob takes `values`."""
     rows = []
-    for k in iterations:
-        fn = jax.jit(lambda s, k=k: jc.render(s, hit_iterations=k))
+    for value in values:
+        fn = jax.jit(lambda s, value=value: jc.render(s, **{knob: value}))
         _, med = timed(fn, scene, repeats=repeats)
-        rows.append(dict(hit_iterations=k, error=rel_l1(fn(scene), truth), time_ms=1e3 * med))
+        image = fn(scene)
+        rows.append(
+            {
+                knob: value,
+                "error": rel_l1(image, truth),
+                "error_no_blur": rel_l1(image, truth, sigma=0.01),
+                "time_ms": 1e3 * med,
+            }
+        )
         print(rows[-1], flush=True)
     return rows
 
@@ -184,48 +211,39 @@ def markdown(rows, columns, fmt) -> str:
     return head + body
 
 
-def plot(window_rows, ref_rows, iter_rows, path):
+def _series(ax, rows, label_key, style, label):
+    ax.loglog([r["time_ms"] for r in rows], [r["error"] for r in rows], style, label=label)
+    for r in rows:
+        ax.annotate(
+            f"{r[label_key]}",
+            (r["time_ms"], r["error"]),
+            fontsize=7,
+            textcoords="offset points",
+            xytext=(4, 2),
+        )
+
+
+def plot(window_rows, ref_rows, knob_rows, path):
+    """Left: window size against the reference's cost; right: the other two knobs."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    fig, ax = plt.subplots(figsize=(6, 4))
-    ax.loglog(
-        [r["time_ms"] for r in window_rows],
-        [r["error"] for r in window_rows],
-        "o-",
-        label="two-pass, N = 3 ... auto",
-    )
-    for r in window_rows:
-        ax.annotate(
-            f"N={r['N']}",
-            (r["time_ms"], r["error"]),
-            fontsize=7,
-            textcoords="offset points",
-            xytext=(4, 2),
-        )
-    ax.loglog(
-        [r["time_ms"] for r in ref_rows],
-        [r["error"] for r in ref_rows],
-        "s--",
-        label="NumPy reference, photons/pixel = p^2",
-    )
-    for r in ref_rows:
-        ax.annotate(
-            f"p={r['photons_per_axis']}",
-            (r["time_ms"], r["error"]),
-            fontsize=7,
-            textcoords="offset points",
-            xytext=(4, 2),
-        )
-    ax.set_xlabel("time per image [ms] (median after compilation)")
-    ax.set_ylabel("relative L1 error vs reference (1 px blur)")
-    ax.set_title("Two-pass caustics: error against time")
-    ax.grid(True, which="both", alpha=0.3)
-    ax.legend(fontsize=8)
+    fig, (left, right) = plt.subplots(1, 2, figsize=(11, 4))
+    _series(left, window_rows, "N", "o-", "two-pass, window N (M = N - 1)")
+    _series(left, ref_rows, "photons_per_axis", "s--", "NumPy reference, p x p photons/pixel")
+    left.set_title("Focusing bump (rays move up to 9 px)")
+    for (key, rows), style in zip(knob_rows.items(), ("o-", "^-"), strict=True):
+        _series(right, rows, key, style, f"two-pass, {key}")
+    right.set_title("Newton steps (60 deg) and samples per pixel (30 deg)")
+    for ax in (left, right):
+        ax.set_xlabel("time per image [ms] (median after compilation)")
+        ax.set_ylabel("relative L1 error vs reference (1 px blur)")
+        ax.grid(True, which="both", alpha=0.3)
+        ax.legend(fontsize=8)
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
+    fig.savefig(path, dpi=100)
     plt.close(fig)
 
 
@@ -239,10 +257,12 @@ def main(argv=None) -> None:
     if args.quick:
         sizes, size, repeats, truth_p = [(40, 30)], 32, 2, 8
         windows, iters, ref_counts = [(3, 2), (7, 6), ("auto", "auto")], [0, 3], [1, 2]
+        factors = [1, 2]
     else:
         sizes, size, repeats, truth_p = [(400, 300), (800, 600)], 128, 15, 32
         windows = [(3, 2), (5, 4), (7, 6), (9, 8), (11, 10), (13, 12), (15, 14), ("auto", "auto")]
         iters, ref_counts = [0, 1, 2, 3, 5], [1, 2, 3, 4, 6, 8, 12]
+        factors = [1, 2, 3, 4]
 
     print(f"device: {jax.devices()[0]}", flush=True)
     speed = speed_table(sizes, repeats)
@@ -254,19 +274,12 @@ def main(argv=None) -> None:
     for r in window_rows:
         r["ref_ms_same_error"] = reference_time_at(r["error"], ref_rows)
 
-    oblique = jc.WaterScene(
-        jc.HeightField(
-            jc.sine_sum(
-                (size, size), (0.0, 1.0, 0.0, 1.0), terms=((2, 1, 0.006, 0.0), (1, 3, 0.0045, 1.0))
-            ),
-            (0.0, 1.0, 0.0, 1.0),
-        ),
-        jc.DirectionalLight.from_angles(60.0, 10.0),
-        jc.PlaneReceiver((0.0, 1.0, 0.0, 1.0), (size, size)),
-        0.5,
-    )
+    oblique = oblique_scene(size)
     oblique_truth = reference.trace_water(oblique, photons_per_axis=truth_p)
-    iter_rows = iteration_table(oblique, oblique_truth, iters, repeats)
+    iter_rows = knob_table(oblique, oblique_truth, "hit_iterations", iters, repeats)
+    ripple = ripple_scene(size)
+    ripple_truth = reference.trace_water(ripple, photons_per_axis=truth_p)
+    super_rows = knob_table(ripple, ripple_truth, "supersample", factors, repeats)
 
     text = [
         "# Two-pass caustics benchmark\n",
@@ -308,9 +321,21 @@ def main(argv=None) -> None:
             ["hit_iterations", "error", "time_ms"],
             {"error": "{:.4f}", "time_ms": "{:.2f}"},
         ),
+        f"\n## Samples per pixel (S x S; crossing waves at 30 degrees, {size}x{size}, N = 7,"
+        " M = 6)\n\n",
+        markdown(
+            super_rows,
+            ["supersample", "error", "error_no_blur", "time_ms"],
+            {"error": "{:.4f}", "error_no_blur": "{:.4f}", "time_ms": "{:.2f}"},
+        ),
     ]
     (args.output / "twopass.md").write_text("".join(text))
-    plot(window_rows, ref_rows, iter_rows, args.output / "twopass_error_vs_time.png")
+    plot(
+        window_rows,
+        ref_rows,
+        {"hit_iterations": iter_rows, "supersample": super_rows},
+        args.output / "twopass_error_vs_time.png",
+    )
     print("".join(text))
     print(f"wrote {args.output / 'twopass.md'} and twopass_error_vs_time.png")
 

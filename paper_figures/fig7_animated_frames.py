@@ -21,6 +21,7 @@ Run ``python paper_figures/fig7_animated_frames.py`` (about 10 s on 2 CPU cores)
 from __future__ import annotations
 
 import argparse
+import sys
 import time
 from pathlib import Path
 
@@ -32,38 +33,18 @@ import numpy as np  # noqa: E402
 
 import jaxcaustics as jc  # noqa: E402
 
-DEFAULT_OUTPUT = Path(__file__).resolve().parent / "output"
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from fig2_caustics_map import DEFAULT_OUTPUT, EXTENT  # noqa: E402
+from fig2_caustics_map import water_scene as fig2_scene  # noqa: E402
 
 # The scene of fig2_caustics_map.py with 1 mm ripples: at 400 x 300 pixels (5 mm) light
 # still lands within 3 pixels of where flat water sends it, so N = 7, M = 6 hold it.
-EXTENT = (0.0, 2.0, 0.0, 1.5)  # metres: x_min, x_max, y_min, y_max
-DEPTH = 0.5  # rest depth, metres
 AMPLITUDE = 0.001  # RMS wave height, metres
-WAVELENGTHS = (0.1, 0.3)  # metres
-NUM_WAVES = 32
-ZENITH, AZIMUTH = 20.0, 30.0  # degrees
-IOR = 1.333
 
 
 def water_scene(shape, time_s: float, *, seed: int = 0):
     """The water scene at `time_s` seconds: heights and caustic map share the extent."""
-    heights = jc.wave_heights(
-        shape,
-        EXTENT,
-        time_s,
-        amplitude=AMPLITUDE,
-        depth=DEPTH,
-        wavelength_range=WAVELENGTHS,
-        num_waves=NUM_WAVES,
-        seed=seed,
-    )
-    return jc.WaterScene(
-        jc.HeightField(heights, EXTENT, boundary="periodic"),
-        jc.DirectionalLight.from_angles(ZENITH, AZIMUTH),
-        jc.PlaneReceiver(EXTENT, shape),
-        DEPTH,
-        ior=IOR,
-    )
+    return fig2_scene(shape, time_s, seed=seed, amplitude=AMPLITUDE)
 
 
 def main(argv=None) -> int:
