@@ -154,10 +154,16 @@ def window_table(scene, truth, windows, repeats) -> list[dict]:
 
 
 def knob_table(scene, truth, knob, values, repeats) -> list[dict]:
-    """Error (1 px blur and none) and time of `render` as one knob takes `values`."""
+    """Error (1 px blur and none) and time of `render` as one knob takes `values`.
+
+    The window is sized for the scene (`auto_window`) so that it does not dominate.
+    """
+    n, m = jc.auto_window(scene)
     rows = []
     for value in values:
-        fn = jax.jit(lambda s, value=value: jc.render(s, **{knob: value}))
+        fn = jax.jit(
+            lambda s, value=value: jc.render(s, samples_x=n, channels_y=m, **{knob: value})
+        )
         _, med = timed(fn, scene, repeats=repeats)
         image = fn(scene)
         rows.append(
@@ -267,7 +273,7 @@ def main(argv=None) -> None:
     print(f"device: {jax.devices()[0]}", flush=True)
     speed = speed_table(sizes, repeats)
 
-    scene = focusing_scene(size)
+    scene = focusing_scene(size // 2)
     truth = reference.trace_water(scene, photons_per_axis=truth_p)
     window_rows = window_table(scene, truth, windows, repeats)
     ref_rows = reference_table(scene, truth, ref_counts)
@@ -296,7 +302,8 @@ def main(argv=None) -> None:
                 "grad_compile_s": "{:.2f}",
             },
         ),
-        f"\n## Error against the window ({size}x{size}, focusing bump, rays move up to ~9 px;"
+        f"\n## Error against the window ({size // 2}x{size // 2}, focusing bump, rays move up to"
+        " ~9 px;"
         f" truth: reference with {truth_p}^2 photons per pixel)\n\n",
         markdown(
             window_rows,
@@ -315,14 +322,14 @@ def main(argv=None) -> None:
             ["photons_per_axis", "error", "time_ms"],
             {"error": "{:.4f}", "time_ms": "{:.0f}"},
         ),
-        f"\n## Newton steps for the surface hit (60 degrees, {size}x{size}, N = 7, M = 6)\n\n",
+        f"\n## Newton steps for the surface hit (60 degrees, {size}x{size}, auto window)\n\n",
         markdown(
             iter_rows,
             ["hit_iterations", "error", "time_ms"],
             {"error": "{:.4f}", "time_ms": "{:.2f}"},
         ),
-        f"\n## Samples per pixel (S x S; crossing waves at 30 degrees, {size}x{size}, N = 7,"
-        " M = 6)\n\n",
+        f"\n## Samples per pixel (S x S; crossing waves at 30 degrees, {size}x{size}, auto"
+        " window)\n\n",
         markdown(
             super_rows,
             ["supersample", "error", "error_no_blur", "time_ms"],

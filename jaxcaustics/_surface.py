@@ -63,13 +63,17 @@ def _bicubic_terms(flat, first, fu, fv, width: int, second: bool):
     return (h, hu, hv, huu, huv, hvv) if second else (h, hu, hv)
 
 
-@functools.partial(jax.custom_jvp, nondiff_argnums=(4,))
-def _bicubic(flat, first, fu, fv, width: int):
-    return _bicubic_terms(flat, first, fu, fv, width, second=False)
+@functools.partial(jax.custom_jvp, nondiff_argnums=(4, 5))
+def _bicubic(flat, first, fu, fv, width: int, second: bool):
+    """Height and first derivatives (and, if `second`, second derivatives).
+
+    The second derivatives are returned as coefficients only: their own derivative is
+    taken as zero (callers wrap them in `stop_gradient`)."""
+    return _bicubic_terms(flat, first, fu, fv, width, second=second)
 
 
 @_bicubic.defjvp
-def _bicubic_jvp(width, primals, tangents):
+def _bicubic_jvp(width, second, primals, tangents):
     flat, first, fu, fv = primals
     t_flat, _, t_fu, t_fv = tangents
     h, hu, hv, huu, huv, hvv = _bicubic_terms(flat, first, fu, fv, width, second=True)
@@ -79,7 +83,10 @@ def _bicubic_jvp(width, primals, tangents):
         lin_hu + huu * t_fu + huv * t_fv,
         lin_hv + huv * t_fu + hvv * t_fv,
     )
-    return (h, hu, hv), tangent_out
+    if not second:
+        return (h, hu, hv), tangent_out
+    zero = jnp.zeros_like(h)
+    return (h, hu, hv, huu, huv, hvv), tangent_out + (zero, zero, zero)
 
 
 def _wrap_or_clamp(coord: Array, size: int, boundary: str) -> Array:
@@ -90,16 +97,23 @@ def _wrap_or_clamp(coord: Array, size: int, boundary: str) -> Array:
 
 
 def height_and_gradient(
-    surface: HeightField, x: Float[Array, ...], y: Float[Array, ...]
-) -> tuple[Array, Array, Array]:
+    surface: HeightField,
+    x: Float[Array, "..."],
+    y: Float[Array, "..."],
+    *,
+    curvature: bool = False,
+) -> tuple[Array, ...]:
     """The interpolated height ``H`` and its gradient at points ``(x, y)``.
 
     **Arguments:**
 
     - `surface`: the height field.
     - `x`, `y`: coordinates in metres, any (equal) shape.
+    - `curvature`: also return the second derivatives ``(H_xx, H_xy, H_yy)`` (1/m),
+      as constants: they carry no derivative of their own.
 
-    **Returns:** ``(H, dH/dx, dH/dy)``, each of the shape of `x`; metres and m/m.
+    **Returns:** ``(H, dH/dx, dH/dy)``, each of the shape of `x`; metres and m/m; with
+    `curvature`, followed by ``(H_xx, H_xy, H_yy)``.
     """
     rows, cols = surface.heights.shape
     x0, x1, y0, y1 = surface.extent
@@ -114,5 +128,10 @@ def height_and_gradient(
     # flat index of tap (-1, -1) in the padded array
     first = (v_base.astype(jnp.int32) + _PAD_LOW - 1) * width
     first = first + u_base.astype(jnp.int32) + _PAD_LOW - 1
-    h, hu, hv = _bicubic(padded.reshape(-1), first, u - u_base, v - v_base, width)
-    return h, hu / dx, hv / dy
+    terms = _bicubic(padded.reshape(-1), first, u - u_base, v - v_base, width, curvature)
+    h, hu, hv = terms[:3]
+    if not curvature:
+        return h, hu / dx, hv / dy
+    huu, huv, hvv = (jax.lax.stop_gradient(t) for t in terms[3:])
+    dx, dy = jax.lax.stop_gradient(dx), jax.lax.stop_gradient(dy)
+    return h, hu / dx, hv / dy, huu / (dx * dx), huv / (dx * dy), hvv / (dy * dy)

@@ -34,7 +34,7 @@ import jax.numpy as jnp
 from jaxtyping import Array, Float
 
 from .._optics import fresnel_transmittance, refract, refract_components
-from .._scene import WaterScene
+from .._scene import HeightField, WaterScene
 from .._surface import height_and_gradient
 
 # Largest automatic window (pixels on each side); beyond it the method is the wrong tool.
@@ -68,31 +68,72 @@ class PrePass(eqx.Module):
     flux: Float[Array, "channels phases rows cols"]
 
 
+def _hit_linearisation(surface: HeightField, cx, cy, d, t):
+    """First-order model of the hit near the iterate ``t`` (held fixed): the point
+    ``q = c + t d``, then one Newton update ``dt``; returns ``(x, y, H, H_x, H_y)``."""
+    sg = jax.lax.stop_gradient
+    qx, qy = cx + t * d[0], cy + t * d[1]
+    h, hx, hy, hxx, hxy, hyy = height_and_gradient(surface, qx, qy, curvature=True)
+    slope = sg(jnp.minimum(d[2] - (hx * d[0] + hy * d[1]), 0.25 * d[2]))
+    dt = (h - t * d[2]) / slope
+    return (
+        qx + dt * d[0],
+        qy + dt * d[1],
+        h + dt * sg(hx * d[0] + hy * d[1]),
+        hx + dt * (hxx * d[0] + hxy * d[1]),
+        hy + dt * (hxy * d[0] + hyy * d[1]),
+    )
+
+
+@jax.custom_jvp
+def _implicit_tangents(surface: HeightField, cx, cy, d, t):
+    """Zeros whose derivative is that of `_hit_linearisation`.
+
+    Added to the hit's values it gives them the implicit-function derivative, while a
+    pass that takes no derivative skips the extra surface evaluation entirely.
+    """
+    return tuple(jnp.zeros_like(cx) for _ in range(5))
+
+
+@_implicit_tangents.defjvp
+def _implicit_tangents_jvp(primals, tangents):
+    _, tangent_out = jax.jvp(_hit_linearisation, primals, tangents)
+    return _implicit_tangents(*primals), tangent_out
+
+
 def _surface_hit(scene: WaterScene, cx: Array, cy: Array, d: Array, iterations: int):
     """Where the ray through rest-plane point ``(cx, cy)`` along ``d`` meets the surface.
 
     Solves ``g(t) = t d_z - H(c + t d_xy) = 0`` by `iterations` Newton steps from
     ``t = 0`` (0 steps: the point above ``c``). The slope ``g'`` is kept below
     ``d_z / 4 < 0`` so that grazing rays over steep waves (several intersections) still
-    take finite steps. All steps but the last run without derivatives; the last step
-    carries them, which gives the implicit-function derivative of the hit at
-    convergence (exact for a converged hit) at the cost of one interpolation.
+    take finite steps.
+
+    **Returns:** ``(x, y, z, H_x, H_y)`` of the hit. The values come from the Newton
+    iterates (no derivatives); the derivatives from the implicit function theorem at
+    the last-but-one iterate (exact for a converged hit), which costs one differentiated
+    surface evaluation instead of one per Newton step.
     """
     surface = scene.surface
+    sg = jax.lax.stop_gradient
 
     def newton_step(t):
         h, hx, hy = height_and_gradient(surface, cx + t * d[0], cy + t * d[1])
         slope = jnp.minimum(d[2] - (hx * d[0] + hy * d[1]), 0.25 * d[2])
-        return t - (t * d[2] - h) / jax.lax.stop_gradient(slope)
+        return t - (t * d[2] - h) / slope
 
+    if iterations == 0:
+        h, hx, hy = height_and_gradient(surface, cx, cy)
+        return cx, cy, scene.rest_depth + h, hx, hy
     t = jnp.zeros_like(cx)
     for _ in range(iterations - 1):
-        t = jax.lax.stop_gradient(newton_step(t))
-    if iterations > 0:
-        t = newton_step(t)
-    px, py = cx + t * d[0], cy + t * d[1]
-    h, hx, hy = height_and_gradient(surface, px, py)
-    return px, py, scene.rest_depth + h, hx, hy
+        t = sg(newton_step(t))
+    t_last = sg(newton_step(t))
+    px, py = sg(cx + t_last * d[0]), sg(cy + t_last * d[1])
+    values = (px, py) + tuple(sg(v) for v in height_and_gradient(surface, px, py))
+    corrections = _implicit_tangents(surface, cx, cy, d, t)
+    x, y, h, hx, hy = (v + c for v, c in zip(values, corrections, strict=True))
+    return x, y, scene.rest_depth + h, hx, hy
 
 
 def prepass(
