@@ -311,25 +311,25 @@ def _read_png_16bit_color(p: Path) -> np.ndarray | None:
     out = np.zeros((rows, stride), dtype=np.int64)
     prev = np.zeros(stride, dtype=np.int64)
     for i in range(rows):
-        kind, line = int(lines[i, 0]), lines[i, 1:].astype(np.int64)
-        if kind == 0:
+        filter_type, line = int(lines[i, 0]), lines[i, 1:].astype(np.int64)
+        if filter_type == 0:
             cur = line
-        elif kind == 1:  # Sub: running sum of each byte of the pixel, modulo 256
+        elif filter_type == 1:  # Sub: running sum of each byte of the pixel, modulo 256
             cur = np.cumsum(line.reshape(cols, bpp), axis=0).reshape(-1) % 256
-        elif kind == 2:  # Up
+        elif filter_type == 2:  # Up
             cur = (line + prev) % 256
-        elif kind in (3, 4):  # Average, Paeth: sequential along the row
+        elif filter_type in (3, 4):  # Average, Paeth: sequential along the row
             cur = np.zeros(stride, dtype=np.int64)
             left = np.zeros(bpp, dtype=np.int64)
             up_left = np.zeros(bpp, dtype=np.int64)
             for j in range(cols):
                 sl = slice(j * bpp, (j + 1) * bpp)
                 up = prev[sl]
-                pred = (left + up) // 2 if kind == 3 else _paeth(left, up, up_left)
+                pred = (left + up) // 2 if filter_type == 3 else _paeth(left, up, up_left)
                 cur[sl] = (line[sl] + pred) % 256
                 left, up_left = cur[sl], up
         else:
-            raise ValueError(f"unknown PNG filter type {kind}")
+            raise ValueError(f"unknown PNG filter type {filter_type}")
         out[i] = cur
         prev = cur
     hi_lo = out.reshape(rows, cols, channels, 2)

@@ -21,6 +21,7 @@ from __future__ import annotations
 import dataclasses
 import math
 from collections.abc import Sequence
+from typing import Any
 
 import equinox as eqx
 import jax
@@ -36,6 +37,7 @@ def _is_concrete(x) -> bool:
 
 
 def _as_float_array(value, name: str) -> Array:
+    arr: Any
     if isinstance(value, jax.Array):
         arr = value
     else:

@@ -19,6 +19,7 @@ import numbers
 import operator
 import warnings
 from collections.abc import Sequence
+from typing import Any
 
 import jax
 import jax.numpy as jnp
@@ -132,8 +133,10 @@ def _draw_waves(
         )
     # One representative of each pair {k, -k} (the upper half-plane), so that no two
     # waves share a spatial frequency: they stay orthogonal and the RMS is exact.
-    m, n = np.meshgrid(np.arange(-m_max, m_max + 1), np.arange(0, n_max + 1), indexing="ij")
-    m, n = m.ravel(), n.ravel()
+    m_grid, n_grid = np.meshgrid(
+        np.arange(-m_max, m_max + 1), np.arange(0, n_max + 1), indexing="ij"
+    )
+    m, n = m_grid.ravel(), n_grid.ravel()
     keep = (n > 0) | (m > 0)
     m, n = m[keep], n[keep]
     kx, ky = 2 * np.pi * m / lx, 2 * np.pi * n / ly
@@ -450,14 +453,14 @@ def sine_sum(
     rows, cols = _check_shape(shape)
     ext = _concrete_extent(extent)
     try:
-        terms = [tuple(t) for t in terms]
+        terms = [tuple(t) for t in terms]  # type: ignore[misc]
     except TypeError as err:
         raise ValueError(
             f"`terms` must be a sequence of (kx, ky, amplitude, phase), got {terms!r}"
         ) from err
     if not terms:
         raise ValueError("`terms` must hold at least one (kx, ky, amplitude, phase)")
-    parsed = []
+    parsed: list[tuple[Any, ...]] = []
     for i, t in enumerate(terms):
         if len(t) != 4:
             raise ValueError(f"`terms[{i}]` must be (kx, ky, amplitude, phase), got {t!r}")
