@@ -93,13 +93,19 @@ class HeightField(eqx.Module):
     - `extent`: ``(x_min, x_max, y_min, y_max)`` in metres, covering the pixel edges.
     - `boundary`: ``"periodic"`` (the surface tiles the plane with period ``extent``) or
       ``"clamp"`` (edge samples extend outwards, so the surface is flat-ish outside).
+    - `rotation`: angle in radians by which the field (its sample grid and `extent`) is
+      rotated about the centre of `extent`, counter-clockwise seen from above (+x
+      towards +y). A periodic field then tiles the plane along its own rotated axes. A
+      scalar array leaf (differentiable); a Python number is stored in the dtype of
+      `heights`.
     """
 
     heights: Float[Array, "rows cols"]
     extent: Float[Array, 4]
+    rotation: Float[Array, ""]
     boundary: str = eqx.field(static=True)
 
-    def __init__(self, heights, extent, boundary: str = "periodic"):
+    def __init__(self, heights, extent, boundary: str = "periodic", rotation=0.0):
         h = _as_float_array(heights, "heights")
         if h.ndim != 2:
             raise ValueError(f"`heights` must be 2-D (rows, cols), got shape {h.shape}")
@@ -110,6 +116,13 @@ class HeightField(eqx.Module):
             raise ValueError(f"`boundary` must be one of {BOUNDARY_MODES}, got {boundary!r}")
         self.heights = h
         self.extent = _check_extent(extent, "extent")
+        if isinstance(rotation, (int, float)) and not isinstance(rotation, bool):
+            rotation = np.asarray(rotation, dtype=h.dtype)
+        rot = _as_float_array(rotation, "rotation")
+        if rot.shape != ():
+            raise ValueError(f"`rotation` must be a scalar (radians), got shape {rot.shape}")
+        _check_finite(rot, "rotation")
+        self.rotation = rot
         self.boundary = boundary
 
     @property

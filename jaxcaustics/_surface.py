@@ -96,6 +96,18 @@ def _wrap_or_clamp(coord: Array, size: int, boundary: str) -> Array:
     return jnp.clip(coord, -2.0, size + 1.0)  # beyond this every tap is the edge sample
 
 
+def _rotation_terms(surface: HeightField) -> tuple[Array, Array, Array, Array]:
+    """``(cos - 1, sin)`` of the field's rotation and the centre ``(cx, cy)`` of its extent.
+
+    ``cos - 1`` is formed as ``-2 sin^2(a/2)``: accurate for small angles and exactly 0 at
+    0, so that an unrotated field takes exactly the path of ``x + 0``.
+    """
+    a = surface.rotation
+    half = jnp.sin(0.5 * a)
+    x0, x1, y0, y1 = surface.extent
+    return -2.0 * half * half, jnp.sin(a), 0.5 * (x0 + x1), 0.5 * (y0 + y1)
+
+
 def height_and_gradient(
     surface: HeightField,
     x: Float[Array, "..."],
@@ -113,11 +125,17 @@ def height_and_gradient(
       as constants: they carry no derivative of their own.
 
     **Returns:** ``(H, dH/dx, dH/dy)``, each of the shape of `x`; metres and m/m; with
-    `curvature`, followed by ``(H_xx, H_xy, H_yy)``.
+    `curvature`, followed by ``(H_xx, H_xy, H_yy)``. Derivatives are along the world
+    axes, also for a rotated field.
     """
     rows, cols = surface.heights.shape
     x0, x1, y0, y1 = surface.extent
     dx, dy = (x1 - x0) / cols, (y1 - y0) / rows
+    # World points into the field's own frame: rotate by -rotation about the centre,
+    # written as x + (cos - 1) (x - cx) + sin (y - cy) so that rotation 0 changes no bit.
+    cm1, sin, cx, cy = _rotation_terms(surface)
+    rx, ry = x - cx, y - cy
+    x, y = x + (cm1 * rx + sin * ry), y + (cm1 * ry - sin * rx)
     u = _wrap_or_clamp((x - x0) / dx - 0.5, cols, surface.boundary)
     v = _wrap_or_clamp((y - y0) / dy - 0.5, rows, surface.boundary)
     mode = "wrap" if surface.boundary == "periodic" else "edge"
@@ -130,8 +148,16 @@ def height_and_gradient(
     first = first + u_base.astype(jnp.int32) + _PAD_LOW - 1
     terms = _bicubic(padded.reshape(-1), first, u - u_base, v - v_base, width, curvature)
     h, hu, hv = terms[:3]
+    gu, gv = hu / dx, hv / dy
+    # The gradient back to world axes: R(rotation) (gu, gv).
+    gx, gy = gu + (cm1 * gu - sin * gv), gv + (cm1 * gv + sin * gu)
     if not curvature:
-        return h, hu / dx, hv / dy
-    huu, huv, hvv = (jax.lax.stop_gradient(t) for t in terms[3:])
-    dx, dy = jax.lax.stop_gradient(dx), jax.lax.stop_gradient(dy)
-    return h, hu / dx, hv / dy, huu / (dx * dx), huv / (dx * dy), hvv / (dy * dy)
+        return h, gx, gy
+    sg = jax.lax.stop_gradient
+    huu, huv, hvv = (sg(t) for t in terms[3:])
+    dx, dy, cm1, sin = sg(dx), sg(dy), sg(cm1), sg(sin)
+    a, b, d = huu / (dx * dx), huv / (dx * dy), hvv / (dy * dy)
+    # The Hessian back to world axes, R H R^T, as corrections that vanish at rotation 0.
+    cos = 1.0 + cm1
+    k = sin * sin * (d - a) - 2.0 * cos * sin * b
+    return h, gx, gy, a + k, b + (cos * sin * (a - d) - 2.0 * sin * sin * b), d - k

@@ -75,7 +75,27 @@ def test_effects_describe_what_is_traced():
 def test_scene_is_a_pytree_with_static_configuration():
     scene = _scene(ior=(1.33, 1.34), fresnel=True)
     leaves = jax.tree_util.tree_leaves(scene)
-    # heights, surface extent, light direction, receiver extent, rest depth
-    assert len(leaves) == 5
+    # heights, surface extent, surface rotation, light direction, receiver extent, rest depth
+    assert len(leaves) == 6
     rebuilt = jax.tree_util.tree_map(lambda x: x * 1, scene)
     assert rebuilt.ior == (1.33, 1.34) and rebuilt.fresnel and rebuilt.receiver.shape == (8, 8)
+
+
+@pytest.mark.parametrize(
+    "rotation", [np.nan, np.inf, [0.1, 0.2], np.zeros((1,)), "a", True, object()]
+)
+def test_bad_rotation_names_the_argument(rotation):
+    with pytest.raises(ValueError, match="rotation"):
+        jc.HeightField(np.zeros((4, 4)), EXT, rotation=rotation)
+
+
+def test_rotation_is_a_float_leaf_in_the_dtype_of_the_heights():
+    field = jc.HeightField(np.zeros((4, 4), np.float32), EXT)
+    assert field.rotation.shape == () and field.rotation.dtype == np.float32
+    assert float(field.rotation) == 0.0
+    field = jc.HeightField(np.zeros((4, 4)), EXT, "clamp", rotation=1)  # an int is fine
+    assert field.rotation.dtype == np.float64 and float(field.rotation) == 1.0
+    field = jc.HeightField(np.zeros((4, 4)), EXT, rotation=np.float32(0.5))  # an array: kept
+    assert field.rotation.dtype == np.float32
+    traced = jax.jit(lambda a: jc.HeightField(np.zeros((4, 4)), EXT, rotation=a).rotation)
+    assert float(traced(0.25)) == 0.25

@@ -29,6 +29,10 @@ Conventions (shared exactly with the JAX side)
   ``(-3t^3 + 4t^2 + t)/2``, ``(t^3 - t^2)/2`` (the same along rows). Tap indices wrap
   (``"periodic"``) or are clipped to ``[0, n - 1]`` (``"clamp"``). The gradient is the
   analytic derivative of the interpolant; the upward normal is ``(-Hx, -Hy, 1) / |.|``.
+- A height field may be rotated (``surface.rotation``, radians, counter-clockwise seen
+  from above, about the centre of its extent): world points are mapped into the field's
+  own frame before sampling, and gradients rotated back. Periodic wrapping of landing
+  points is used only for unrotated fields; rotated ones are emitted with a margin.
 - Light is collimated with unit direction of travel ``d`` (``d_z < 0``). Photons start on
   the rest plane ``z = rest_depth`` and hit the surface at the first root of
   ``z(t) - rest_depth - H(x(t), y(t))`` along the whole line (``t`` may be negative),

@@ -101,12 +101,18 @@ class _Surface:
     constant-extension cells outside the samples): the interpolant's range
     ``[h_lo, h_hi]``, and per cell upper bounds of ``|Hx|``, ``|Hy|``, ``|Hxx|``,
     ``|Hxy|``, ``|Hyy|`` (arrays of the cells' shape).
+
+    The bounds are along the field's own axes. A rotated field (`rotation`, radians,
+    counter-clockwise about the centre of `extent`) is evaluated at world points mapped
+    into its own frame, and its gradient rotated back to world axes; a caller bounding a
+    directional derivative rotates the direction into the field's frame (`to_field`).
     """
 
     heights: np.ndarray  # (rows, cols)
     padded: np.ndarray  # (rows + 2 _PAD, cols + 2 _PAD): wrapped or edge-repeated samples
     extent: tuple[float, float, float, float]
     periodic: bool
+    rotation: float
     h_lo: float
     h_hi: float
     bound_x: np.ndarray
@@ -123,8 +129,15 @@ class _Surface:
     def dy(self) -> float:
         return (self.extent[3] - self.extent[2]) / self.heights.shape[0]
 
+    def to_field(self, vx, vy):
+        """A world vector's components along the field's own axes (rotated by -rotation)."""
+        if self.rotation == 0.0:
+            return vx, vy
+        c, s = np.cos(self.rotation), np.sin(self.rotation)
+        return c * vx + s * vy, c * vy - s * vx
+
     @classmethod
-    def build(cls, heights, extent, boundary) -> _Surface:
+    def build(cls, heights, extent, boundary, rotation=0.0) -> _Surface:
         h = np.ascontiguousarray(np.asarray(heights, dtype=np.float64))
         if h.ndim != 2 or h.shape[0] < 2 or h.shape[1] < 2:
             raise ValueError(f"`heights` must be 2-D with at least 2x2 samples, got {h.shape}")
@@ -139,6 +152,12 @@ class _Surface:
             raise ValueError(f"`extent` must have x_max > x_min and y_max > y_min, got {ext}")
         if boundary not in BOUNDARY_MODES:
             raise ValueError(f"`boundary` must be one of {BOUNDARY_MODES}, got {boundary!r}")
+        try:
+            rot = np.asarray(rotation, dtype=np.float64)
+        except (TypeError, ValueError) as err:
+            raise ValueError(f"`rotation` must be a number (radians), got {rotation!r}") from err
+        if rot.shape != () or not np.isfinite(rot):
+            raise ValueError(f"`rotation` must be one finite number (radians), got {rotation!r}")
         periodic = boundary == "periodic"
         rows, cols = h.shape
         dx = (ext[1] - ext[0]) / cols
@@ -164,6 +183,7 @@ class _Surface:
             padded=padded,
             extent=(float(ext[0]), float(ext[1]), float(ext[2]), float(ext[3])),
             periodic=periodic,
+            rotation=float(rot),
             h_lo=float((lo - _OVERSHOOT * (hi - lo)).min()) - pad,
             h_hi=float((hi + _OVERSHOOT * (hi - lo)).max()) + pad,
             bound_x=_across_rows(slope_x, False) * (safety / dx),
@@ -180,6 +200,11 @@ class _Surface:
 
         With ``grad=False`` only H is computed (the slopes are returned as None).
         """
+        if self.rotation != 0.0:  # into the field's frame, about the extent's centre
+            cx = 0.5 * (self.extent[0] + self.extent[1])
+            cy = 0.5 * (self.extent[2] + self.extent[3])
+            x, y = self.to_field(x - cx, y - cy)
+            x, y = x + cx, y + cy
         rows, cols = self.heights.shape
         stride = self.padded.shape[1]
         flat = self.padded.ravel()
@@ -206,10 +231,16 @@ class _Surface:
                 grad_y += dwy[a] * g
         if not grad:
             return value, None, None
-        return value, grad_x / self.dx, grad_y / self.dy
+        grad_x, grad_y = grad_x / self.dx, grad_y / self.dy
+        if self.rotation != 0.0:  # back to world axes
+            c, s = np.cos(self.rotation), np.sin(self.rotation)
+            grad_x, grad_y = c * grad_x - s * grad_y, s * grad_x + c * grad_y
+        return value, grad_x, grad_y
 
 
-def surface_height(heights, extent, boundary, x, y) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def surface_height(
+    heights, extent, boundary, x, y, rotation=0.0
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Evaluate the Catmull-Rom height field and its analytic gradient.
 
     Parameters
@@ -223,13 +254,17 @@ def surface_height(heights, extent, boundary, x, y) -> tuple[np.ndarray, np.ndar
         Tap indices wrap modulo the size, or are clipped to ``[0, n - 1]``.
     x, y : array_like
         Query coordinates in metres (broadcast together to a common shape ``S``).
+    rotation : float, default 0.0
+        Angle in radians by which the field (sample grid and extent) is rotated about the
+        centre of `extent`, counter-clockwise seen from above (+x towards +y).
 
     Returns
     -------
     H, Hx, Hy : np.ndarray, each of shape ``S``, float64
-        The height (metres) and its slopes ``dH/dx``, ``dH/dy`` (dimensionless).
+        The height (metres) and its slopes ``dH/dx``, ``dH/dy`` (dimensionless) along
+        the world axes.
     """
-    surf = _Surface.build(heights, extent, boundary)
+    surf = _Surface.build(heights, extent, boundary, rotation)
     xb, yb = np.broadcast_arrays(np.asarray(x, dtype=np.float64), np.asarray(y, dtype=np.float64))
     shape = xb.shape
     h, hx, hy = surf.evaluate(xb.ravel(), yb.ravel())
@@ -279,13 +314,15 @@ def intersect_surface(
     t_top = surf.h_hi / d_z  # z(t_top) = rest + upper bound of H: above the surface
     t_bot = surf.h_lo / d_z  # below the surface
     n = cx.shape[0]
-    # Largest rate at which the ray can approach the surface, and largest |f''|.
-    rise = float((abs(d_x) * surf.bound_x + abs(d_y) * surf.bound_y).max())
+    # Largest rate at which the ray can approach the surface, and largest |f''|: the
+    # per-cell bounds are along the field's axes, so the direction is taken there too.
+    d_u, d_v = surf.to_field(d_x, d_y)
+    rise = float((abs(d_u) * surf.bound_x + abs(d_v) * surf.bound_y).max())
     curv = float(
         (
-            d_x * d_x * surf.bound_xx
-            + 2.0 * abs(d_x * d_y) * surf.bound_xy
-            + d_y * d_y * surf.bound_yy
+            d_u * d_u * surf.bound_xx
+            + 2.0 * abs(d_u * d_v) * surf.bound_xy
+            + d_v * d_v * surf.bound_yy
         ).max()
     )
 

@@ -49,7 +49,8 @@ def _read_scene(scene) -> _Water:
         rest_depth, ior, fresnel = scene.rest_depth, scene.ior, scene.fresnel
     except AttributeError as err:
         raise ValueError(f"`scene` must be a WaterScene-like object: {err}") from err
-    surf = _Surface.build(heights, extent, boundary)
+    rotation = getattr(surface, "rotation", 0.0)  # absent: an unrotated field
+    surf = _Surface.build(heights, extent, boundary, rotation)
 
     d = np.asarray(direction, dtype=np.float64)
     if d.shape != (3,) or not np.all(np.isfinite(d)):
@@ -211,8 +212,9 @@ def _flat_offset(w: _Water, ior: float) -> tuple[float, float]:
 
 
 def _whole_periods(w: _Water) -> bool:
-    """Periodic surface and a receiver spanning a whole number of periods along x and y."""
-    if not w.surface.periodic:
+    """Periodic, unrotated surface and a receiver spanning a whole number of periods along
+    x and y (a rotated field tiles the plane along its own axes: no wrapping)."""
+    if not w.surface.periodic or w.surface.rotation != 0.0:
         return False
     se, re = w.surface.extent, w.receiver_extent
     for span, period in ((re[1] - re[0], se[1] - se[0]), (re[3] - re[2], se[3] - se[2])):
@@ -347,7 +349,8 @@ def trace_water(
     the Fresnel transmittance if ``scene.fresnel``). Each is traced exactly (first hit on
     the bicubic surface, refraction, landing on ``z = 0``) and binned.
 
-    For a periodic surface and a receiver spanning whole periods, one emission window the
+    For a periodic, unrotated surface and a receiver spanning whole periods, one emission
+    window the
     size of the receiver is traced and landing points wrap into the receiver (energy is
     conserved exactly). Otherwise the emission window is padded by `margin` on each side
     and photons landing off the receiver are dropped.
