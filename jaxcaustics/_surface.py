@@ -20,7 +20,7 @@ from ._scene import HeightField
 _PAD_LOW, _PAD_HIGH = 3, 4  # enough for the taps of any coordinate after wrap/clamp
 
 
-def _catmull_rom(t: Array) -> tuple[Array, Array, Array]:
+def _catmull_rom(t: Array) -> tuple[tuple[Array, ...], tuple[Array, ...], tuple[Array, ...]]:
     """Weights of the taps ``-1, 0, 1, 2``, their first and second derivatives."""
     t2, t3 = t * t, t * t * t
     w = (
