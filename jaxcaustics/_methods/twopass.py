@@ -68,14 +68,19 @@ class PrePass(eqx.Module):
     flux: Float[Array, "channels phases rows cols"]
 
 
+def _ray_slope(hx: Array, hy: Array, d: Array) -> Array:
+    """``g'(t)`` of ``g(t) = t d_z - H(c + t d_xy)``, kept below ``d_z / 4 < 0`` so that
+    grazing rays over steep waves (several intersections) still take finite steps."""
+    return jnp.minimum(d[2] - (hx * d[0] + hy * d[1]), 0.25 * d[2])
+
+
 def _hit_linearisation(surface: HeightField, cx, cy, d, t):
     """First-order model of the hit near the iterate ``t`` (held fixed): the point
     ``q = c + t d``, then one Newton update ``dt``; returns ``(x, y, H, H_x, H_y)``."""
     sg = jax.lax.stop_gradient
     qx, qy = cx + t * d[0], cy + t * d[1]
     h, hx, hy, hxx, hxy, hyy = height_and_gradient(surface, qx, qy, curvature=True)
-    slope = sg(jnp.minimum(d[2] - (hx * d[0] + hy * d[1]), 0.25 * d[2]))
-    dt = (h - t * d[2]) / slope
+    dt = (h - t * d[2]) / sg(_ray_slope(hx, hy, d))
     return (
         qx + dt * d[0],
         qy + dt * d[1],
@@ -105,9 +110,7 @@ def _surface_hit(scene: WaterScene, cx: Array, cy: Array, d: Array, iterations: 
     """Where the ray through rest-plane point ``(cx, cy)`` along ``d`` meets the surface.
 
     Solves ``g(t) = t d_z - H(c + t d_xy) = 0`` by `iterations` Newton steps from
-    ``t = 0`` (0 steps: the point above ``c``). The slope ``g'`` is kept below
-    ``d_z / 4 < 0`` so that grazing rays over steep waves (several intersections) still
-    take finite steps.
+    ``t = 0`` (0 steps: the point above ``c``), with the slope of `_ray_slope`.
 
     **Returns:** ``(x, y, z, H_x, H_y)`` of the hit. The values come from the Newton
     iterates (no derivatives); the derivatives from the implicit function theorem at
@@ -119,8 +122,7 @@ def _surface_hit(scene: WaterScene, cx: Array, cy: Array, d: Array, iterations: 
 
     def newton_step(t):
         h, hx, hy = height_and_gradient(surface, cx + t * d[0], cy + t * d[1])
-        slope = jnp.minimum(d[2] - (hx * d[0] + hy * d[1]), 0.25 * d[2])
-        return t - (t * d[2] - h) / slope
+        return t - (t * d[2] - h) / _ray_slope(hx, hy, d)
 
     if iterations == 0:
         h, hx, hy = height_and_gradient(surface, cx, cy)
@@ -166,7 +168,7 @@ def prepass(
         normal = (-hx * inv_norm, -hy * inv_norm, inv_norm)
         t_dir, tir, cos_i = refract_components((d[0], d[1], d[2]), normal, eta)
         going_down = t_dir[2] < 0.0
-        valid = ~tir & going_down
+        valid = ~tir & going_down & (hit_z > 0.0)  # a trough below the ground casts nothing
         s = hit_z / -jnp.where(going_down, t_dir[2], -1.0)
         ground_x = hit_x + s * t_dir[0]
         ground_y = hit_y + s * t_dir[1]
