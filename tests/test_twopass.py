@@ -362,3 +362,12 @@ def test_effects_a_scene_does_not_call_for_are_not_traced(monkeypatch):
     assert len(jaxpr_on.jaxpr.eqns) > len(jaxpr_off.jaxpr.eqns)
     # and a single index of refraction traces one channel
     assert jax.eval_shape(lambda s: twopass.prepass(s, 1, 1, 2, 1), off).flux.shape[0] == 1
+
+
+def test_auto_window_under_jit_says_what_to_do():
+    scene = make_scene(sines((9, 11)), shape=(9, 11))
+    with pytest.raises(ValueError, match="auto_window"):
+        jax.jit(lambda s: jc.render(s, samples_x="auto"))(scene)
+    n, m = jc.auto_window(scene)
+    image = jax.jit(lambda s: jc.render(s, samples_x=n, channels_y=m))(scene)
+    np.testing.assert_allclose(np.asarray(image), np.asarray(jc.render(scene, samples_x="auto")))
