@@ -31,6 +31,7 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
 import jaxcaustics as jc  # noqa: E402
+from jaxcaustics._cli import _size  # noqa: E402  (the CLI's COLSxROWS parser)
 
 DEFAULT_OUTPUT = Path(__file__).resolve().parent / "output"
 
@@ -63,16 +64,6 @@ def water_scene(shape, time_s: float, *, seed: int = 0, amplitude: float = AMPLI
         DEPTH,
         ior=IOR,
     )
-
-
-def _size(text: str) -> tuple[int, int]:
-    try:
-        cols, rows = (int(v) for v in text.lower().split("x"))
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected COLSxROWS, got {text!r}") from None
-    if cols < 8 or rows < 8:
-        raise argparse.ArgumentTypeError(f"need at least 8x8 pixels, got {text!r}")
-    return rows, cols
 
 
 def main(argv=None) -> int:
