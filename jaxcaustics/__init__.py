@@ -22,6 +22,12 @@ from ._io import (
 from ._io import (
     write_png_linear16 as write_png_linear16,
 )
+from ._mesh import (
+    Mesh as Mesh,
+)
+from ._mesh import (
+    MeshScene as MeshScene,
+)
 from ._methods.twopass import (
     TwoPassResult as TwoPassResult,
 )
@@ -51,7 +57,13 @@ from ._scene import (
     HeightField as HeightField,
 )
 from ._scene import (
+    LensScene as LensScene,
+)
+from ._scene import (
     PlaneReceiver as PlaneReceiver,
+)
+from ._scene import (
+    PointLight as PointLight,
 )
 from ._scene import (
     WaterScene as WaterScene,

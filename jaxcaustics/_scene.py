@@ -307,3 +307,139 @@ class WaterScene(eqx.Module):
             occlusion=False,
             interfaces=1,
         )
+
+
+class PointLight(eqx.Module):
+    """An isotropic point light (a bare lamp, an LED at a finite distance).
+
+    **Arguments:**
+
+    - `position`: shape ``(3,)``, metres. It must lie above everything it lights.
+    - `intensity`: radiant intensity, W/sr (> 0). A receiver element at distance ``r``
+      whose normal makes the angle ``theta`` with the ray gets the irradiance
+      ``intensity cos(theta) / r^2`` (W/m^2) straight from the lamp; images of scenes lit
+      by a point light are in these units.
+    """
+
+    position: Float[Array, 3]
+    intensity: Float[Array, ""]
+
+    def __init__(self, position, intensity=1.0):
+        p = _as_float_array(position, "position")
+        if p.shape != (3,):
+            raise ValueError(f"`position` must have shape (3,), got {p.shape}")
+        _check_finite(p, "position")
+        self.position = p
+        self.intensity = _check_positive_scalar(intensity, "intensity")
+
+
+Light = DirectionalLight | PointLight
+
+
+def _check_light(light) -> None:
+    if not isinstance(light, (DirectionalLight, PointLight)):
+        raise ValueError(
+            f"`light` must be a DirectionalLight or a PointLight, got {type(light).__name__}"
+        )
+
+
+class LensScene(eqx.Module):
+    """A glass slab with a height-field top and a flat bottom over a screen: the scene of
+    caustic lens design.
+
+    The receiver (screen) is the plane ``z = 0``; the slab's flat bottom face is the plane
+    ``z = throw``; its top surface is ``z = throw + thickness + surface.heights(x, y)``.
+    Light enters through the top surface within ``surface.extent`` (the aperture: light
+    outside it is stopped by the lens holder), refracts into the glass, leaves through the
+    bottom face (refracting again, or lost by total internal reflection) and lands on the
+    screen. The slab's side walls are not modelled: rays leave through the bottom plane.
+
+    **Arguments:**
+
+    - `surface`: a `HeightField` of the top surface, heights in metres relative to its
+      rest plane; ``boundary="clamp"`` is the usual choice for a lens.
+    - `light`: a `DirectionalLight` (any direction going down) or a `PointLight` above
+      the lens.
+    - `receiver`: a `PlaneReceiver` (the screen's pixel grid on ``z = 0``).
+    - `thickness`: metres from the bottom face to the top surface's rest plane (> 0); the
+      top surface must stay above the bottom face (``thickness + min(heights) > 0``).
+    - `throw`: metres from the bottom face to the screen (> 0).
+    - `ior`: index of refraction of the glass (static); a sequence gives one image
+      channel per index (dispersion), like `WaterScene`.
+    - `fresnel`: multiply each photon by the exact unpolarised transmittances of both
+      faces.
+
+    Images are irradiance relative to the irradiance the light gives a horizontal plane
+    (directional light), or in W/m^2 for a point light of the given intensity.
+    """
+
+    surface: HeightField
+    light: DirectionalLight | PointLight
+    receiver: PlaneReceiver
+    thickness: Float[Array, ""]
+    throw: Float[Array, ""]
+    ior: float | tuple[float, ...] = eqx.field(static=True)
+    fresnel: bool = eqx.field(static=True)
+
+    def __init__(
+        self,
+        surface: HeightField,
+        light: DirectionalLight | PointLight,
+        receiver: PlaneReceiver,
+        thickness=0.01,
+        throw=0.5,
+        *,
+        ior: float | Sequence[float] = 1.5,
+        fresnel: bool = False,
+    ):
+        if not isinstance(surface, HeightField):
+            raise ValueError(f"`surface` must be a HeightField, got {type(surface).__name__}")
+        _check_light(light)
+        if not isinstance(receiver, PlaneReceiver):
+            raise ValueError(f"`receiver` must be a PlaneReceiver, got {type(receiver).__name__}")
+        self.surface = surface
+        self.light = light
+        self.receiver = receiver
+        self.thickness = _check_positive_scalar(thickness, "thickness")
+        self.throw = _check_positive_scalar(throw, "throw")
+        self.ior = _check_ior(ior)
+        self.fresnel = bool(fresnel)
+        if _is_concrete(surface.heights) and _is_concrete(self.thickness):
+            low = float(np.min(np.asarray(surface.heights)))
+            if float(self.thickness) + low <= 0.0:
+                raise ValueError(
+                    f"`surface` dips through the bottom face: thickness {float(self.thickness)}"
+                    f" + min(heights) {low} <= 0 (impossible geometry)"
+                )
+        if isinstance(light, PointLight) and _is_concrete(light.position):
+            top = float(self.throw) + float(self.thickness)
+            if _is_concrete(surface.heights):
+                top += float(np.max(np.asarray(surface.heights)))
+            if not float(light.position[2]) > top:
+                raise ValueError(
+                    f"`light` must be above the lens: position z = {float(light.position[2])}"
+                    f" <= top of the lens {top}"
+                )
+
+    @property
+    def iors(self) -> tuple[float, ...]:
+        """The indices of refraction as a tuple, one per image channel."""
+        return self.ior if isinstance(self.ior, tuple) else (self.ior,)
+
+    @property
+    def top(self) -> Array:
+        """Height of the top surface's rest plane above the screen, metres."""
+        return self.throw + self.thickness
+
+    @property
+    def effects(self) -> Effects:
+        """What rendering this scene will trace (TIR is possible at the bottom face)."""
+        return Effects(
+            refraction=True,
+            reflection=False,
+            fresnel=self.fresnel,
+            total_internal_reflection=True,
+            dispersion_channels=len(self.iors),
+            occlusion=False,
+            interfaces=2,
+        )

@@ -34,8 +34,8 @@ import jax.numpy as jnp
 from jaxtyping import Array, Float
 
 from .._optics import fresnel_transmittance, refract, refract_components
-from .._scene import HeightField, WaterScene
-from .._surface import height_and_gradient
+from .._scene import WaterScene
+from .._surface import ray_surface_hit
 
 # Largest automatic window (pixels on each side); beyond it the method is the wrong tool.
 MAX_AUTO_HALF_WINDOW = 32
@@ -68,76 +68,6 @@ class PrePass(eqx.Module):
     flux: Float[Array, "channels phases rows cols"]
 
 
-def _ray_slope(hx: Array, hy: Array, d: Array) -> Array:
-    """``g'(t)`` of ``g(t) = t d_z - H(c + t d_xy)``, kept below ``d_z / 4 < 0`` so that
-    grazing rays over steep waves (several intersections) still take finite steps."""
-    return jnp.minimum(d[2] - (hx * d[0] + hy * d[1]), 0.25 * d[2])
-
-
-def _hit_linearisation(surface: HeightField, cx, cy, d, t):
-    """First-order model of the hit near the iterate ``t`` (held fixed): the point
-    ``q = c + t d``, then one Newton update ``dt``; returns ``(x, y, H, H_x, H_y)``."""
-    sg = jax.lax.stop_gradient
-    qx, qy = cx + t * d[0], cy + t * d[1]
-    h, hx, hy, hxx, hxy, hyy = height_and_gradient(surface, qx, qy, curvature=True)
-    dt = (h - t * d[2]) / sg(_ray_slope(hx, hy, d))
-    return (
-        qx + dt * d[0],
-        qy + dt * d[1],
-        h + dt * sg(hx * d[0] + hy * d[1]),
-        hx + dt * (hxx * d[0] + hxy * d[1]),
-        hy + dt * (hxy * d[0] + hyy * d[1]),
-    )
-
-
-@jax.custom_jvp
-def _implicit_tangents(surface: HeightField, cx, cy, d, t):
-    """Zeros whose derivative is that of `_hit_linearisation`.
-
-    Added to the hit's values it gives them the implicit-function derivative, while a
-    pass that takes no derivative skips the extra surface evaluation entirely.
-    """
-    return tuple(jnp.zeros_like(cx) for _ in range(5))
-
-
-@_implicit_tangents.defjvp
-def _implicit_tangents_jvp(primals, tangents):
-    _, tangent_out = jax.jvp(_hit_linearisation, primals, tangents)
-    return _implicit_tangents(*primals), tangent_out
-
-
-def _surface_hit(scene: WaterScene, cx: Array, cy: Array, d: Array, iterations: int):
-    """Where the ray through rest-plane point ``(cx, cy)`` along ``d`` meets the surface.
-
-    Solves ``g(t) = t d_z - H(c + t d_xy) = 0`` by `iterations` Newton steps from
-    ``t = 0`` (0 steps: the point above ``c``), with the slope of `_ray_slope`.
-
-    **Returns:** ``(x, y, z, H_x, H_y)`` of the hit. The values come from the Newton
-    iterates (no derivatives); the derivatives from the implicit function theorem at
-    the last-but-one iterate (exact for a converged hit), which costs one differentiated
-    surface evaluation instead of one per Newton step.
-    """
-    surface = scene.surface
-    sg = jax.lax.stop_gradient
-
-    def newton_step(t):
-        h, hx, hy = height_and_gradient(surface, cx + t * d[0], cy + t * d[1])
-        return t - (t * d[2] - h) / _ray_slope(hx, hy, d)
-
-    if iterations == 0:
-        h, hx, hy = height_and_gradient(surface, cx, cy)
-        return cx, cy, scene.rest_depth + h, hx, hy
-    t = jnp.zeros_like(cx)
-    for _ in range(iterations - 1):
-        t = sg(newton_step(t))
-    t_last = sg(newton_step(t))
-    px, py = sg(cx + t_last * d[0]), sg(cy + t_last * d[1])
-    values = (px, py) + tuple(sg(v) for v in height_and_gradient(surface, px, py))
-    corrections = _implicit_tangents(surface, cx, cy, d, t)
-    x, y, h, hx, hy = (v + c for v, c in zip(values, corrections, strict=True))
-    return x, y, scene.rest_depth + h, hx, hy
-
-
 def prepass(
     scene: WaterScene, half_x: int, half_y: int, iterations: int, supersample: int = 1
 ) -> PrePass:
@@ -163,7 +93,9 @@ def prepass(
         offset = scene.rest_depth / flat_t[2]
         cx, cy = sample_x + offset * flat_t[0], sample_y + offset * flat_t[1]
 
-        hit_x, hit_y, hit_z, hx, hy = _surface_hit(scene, cx, cy, d, iterations)
+        hit_x, hit_y, hit_z, hx, hy = ray_surface_hit(
+            scene.surface, scene.rest_depth, cx, cy, (d[0], d[1], d[2]), iterations
+        )
         inv_norm = jax.lax.rsqrt(1.0 + hx * hx + hy * hy)
         normal = (-hx * inv_norm, -hy * inv_norm, inv_norm)
         t_dir, tir, cos_i = refract_components((d[0], d[1], d[2]), normal, eta)
