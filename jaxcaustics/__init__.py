@@ -28,6 +28,15 @@ from ._mesh import (
 from ._mesh import (
     MeshScene as MeshScene,
 )
+from ._methods.triangles import (
+    TrianglesResult as TrianglesResult,
+)
+from ._methods.triangles import (
+    caustic_triangles as caustic_triangles,
+)
+from ._methods.triangles import (
+    trace_photons as trace_photons,
+)
 from ._methods.twopass import (
     TwoPassResult as TwoPassResult,
 )
@@ -45,6 +54,9 @@ from ._optics import (
 )
 from ._optics import (
     refract as refract,
+)
+from ._photons import (
+    Photons as Photons,
 )
 from ._render import render as render
 from ._scene import (

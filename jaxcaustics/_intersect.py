@@ -77,8 +77,12 @@ def nearest_hits(
     triangles: Float[Array, "F 3 3"],
     t_min: float | Array = 0.0,
     batch_size: int = 4096,
+    exclude: Int[Array, " P"] | None = None,
 ) -> tuple[Float[Array, " P"], Int[Array, " P"]]:
     """Nearest hit of each ray among `triangles` (no derivatives).
+
+    `exclude` (optional, one index per ray, -1 for none) is a triangle each ray must not
+    hit: the one it just left, which a straight ray cannot meet again.
 
     **Returns:** ``(t, index)``: the ray parameter (``inf`` when the ray misses every
     triangle) and the triangle's index (0 for a miss; check ``isfinite(t)``).
@@ -86,13 +90,18 @@ def nearest_hits(
     sg = jax.lax.stop_gradient
     origins, directions, triangles = sg(origins), sg(directions), sg(triangles)
 
+    if exclude is None:
+        exclude = jnp.full(origins.shape[:1], -1, jnp.int32)
+    index = jnp.arange(triangles.shape[0], dtype=jnp.int32)
+
     def one(ray):
-        o, d = ray
+        o, d, skip = ray
         t = ray_triangle_distances(o[None], d[None], triangles, t_min)[0]
+        t = jnp.where(index == skip, jnp.inf, t)
         k = jnp.argmin(t)
         return t[k], k.astype(jnp.int32)
 
-    return jax.lax.map(one, (origins, directions), batch_size=batch_size)
+    return jax.lax.map(one, (origins, directions, exclude), batch_size=batch_size)
 
 
 def hit_on_triangle(

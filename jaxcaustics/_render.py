@@ -6,28 +6,36 @@ from typing import Any
 
 from jaxtyping import Array
 
+from ._methods.triangles import caustic_triangles
 from ._methods.twopass import two_pass
 from ._scene import WaterScene
 
-METHODS = {"twopass": two_pass}
+METHODS = {"twopass": two_pass, "triangles": caustic_triangles}
+# the method each scene type gets when none is named
+DEFAULT_METHOD = {"WaterScene": "twopass", "LensScene": "triangles", "MeshScene": "triangles"}
 
 
-def render(scene: WaterScene, method: str = "twopass", *, return_stats: bool = False, **knobs: Any):
+def render(
+    scene: WaterScene, method: str | None = None, *, return_stats: bool = False, **knobs: Any
+):
     """Render the caustics of `scene` on its receiver.
 
     **Arguments:**
 
-    - `scene`: the scene (for now a `WaterScene`).
-    - `method`: ``"twopass"`` (Yuksel & Keyser). Later methods plug in here.
-    - `return_stats`: also return a dict of diagnostics (for ``"twopass"``:
-      ``missed_flux_fraction`` per channel).
-    - `**knobs`: the method's quality knobs (``"twopass"``: ``samples_x``,
-      ``channels_y``, ``hit_iterations``; see `two_pass`).
+    - `scene`: a `WaterScene`, `LensScene` or `MeshScene`.
+    - `method`: ``"twopass"`` (Yuksel & Keyser; water) or ``"triangles"`` (Umenhoffer et
+      al.'s caustic triangles; lens and mesh scenes). Default: the scene's natural method
+      (``"twopass"`` for water, ``"triangles"`` otherwise).
+    - `return_stats`: also return a dict of diagnostics (``missed_flux_fraction`` per
+      channel).
+    - `**knobs`: the method's quality knobs (see `two_pass` and `caustic_triangles`).
 
     **Returns:** the irradiance image, relative to the irradiance the light gives a
     horizontal plane: ``(rows, cols)`` for a single index of refraction, ``(rows, cols,
     channels)`` for a sequence of indices. With `return_stats`, ``(image, stats)``.
     """
+    if method is None:
+        method = DEFAULT_METHOD.get(type(scene).__name__, "twopass")
     if method not in METHODS:
         raise ValueError(f"`method` must be one of {sorted(METHODS)}, got {method!r}")
     result = METHODS[method](scene, **knobs)

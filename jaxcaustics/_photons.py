@@ -1,0 +1,289 @@
+"""Photon tracing for the lens and mesh scenes: the photon hit location image.
+
+Photons leave the light on a regular grid (the light's view of the caustic generator),
+follow their path through the generator, and end on the screen ``z = 0``. The result is
+a `Photons` image: one photon per grid vertex, with its terminal position, the flux
+density it carries and a validity mask. Photons that miss the generator, are stopped by
+an occluder, are lost to total internal reflection or need more interfaces than the
+scene allows are *invalid*: they stay in the image (fixed shapes, jittable) and are
+masked out downstream, never filtered on the Python side.
+
+Flux: a photon's `density` is the flux per unit emission area it carries (the light's
+irradiance across the emission plane, times the Fresnel factors along its path), so the
+flux of a grid cell is ``cell_area`` times the mean density of its corners.
+"""
+
+from __future__ import annotations
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+from jaxtyping import Array, Bool, Float
+
+from ._intersect import face_normals, hit_on_triangle, nearest_hits, vertex_normals
+from ._mesh import MeshScene
+from ._optics import fresnel_transmittance, reflect, refract_components
+from ._scene import DirectionalLight, LensScene
+from ._surface import ray_surface_hit
+
+
+class Photons(eqx.Module):
+    """The photon hit location image (one photon per vertex of the emission grid).
+
+    - `position`: ``(channels, rows, cols, 3)``, where each photon ends, metres (on the
+      screen ``z = 0`` for the lens and mesh scenes).
+    - `direction`: ``(channels, rows, cols, 3)``, unit direction of travel on arrival.
+    - `density`: ``(channels, rows, cols)``, flux per unit emission area carried (0 where
+      invalid).
+    - `valid`: ``(channels, rows, cols)``, the photon reached the screen through the
+      generator.
+    - `cell_area`: area of one emission-grid cell, m^2 (scalar).
+    """
+
+    position: Float[Array, "channels rows cols 3"]
+    direction: Float[Array, "channels rows cols 3"]
+    density: Float[Array, "channels rows cols"]
+    valid: Bool[Array, "channels rows cols"]
+    cell_area: Float[Array, ""]
+
+    @property
+    def grid_shape(self) -> tuple[int, int]:
+        return tuple(self.valid.shape[1:])  # type: ignore[return-value]
+
+    def flux(self) -> Float[Array, "channels rows cols"]:
+        """Flux of each photon taken as a point (its share of the grid: a quarter of each
+        adjacent cell), for splatting."""
+        rows, cols = self.grid_shape
+        wy = jnp.ones(rows, self.density.dtype).at[jnp.array([0, -1])].set(0.5)
+        wx = jnp.ones(cols, self.density.dtype).at[jnp.array([0, -1])].set(0.5)
+        return self.density * self.cell_area * wy[:, None] * wx[None, :]
+
+
+def _grid(lo_u, hi_u, lo_v, hi_v, shape: tuple[int, int], dtype):
+    """Vertices of a ``rows x cols`` grid spanning the rectangle (edges included)."""
+    rows, cols = shape
+    u = lo_u + (hi_u - lo_u) * jnp.arange(cols, dtype=dtype) / (cols - 1)
+    v = lo_v + (hi_v - lo_v) * jnp.arange(rows, dtype=dtype) / (rows - 1)
+    uu, vv = jnp.meshgrid(u, v)
+    return uu, vv, (hi_u - lo_u) / (cols - 1) * (hi_v - lo_v) / (rows - 1)
+
+
+def _normalise(v):
+    inv = jax.lax.rsqrt(sum(c * c for c in v))
+    return tuple(c * inv for c in v)
+
+
+def _land(point, direction, valid):
+    """Carry rays to the screen ``z = 0``; rays going up are invalid."""
+    down = direction[2] < 0.0
+    s = -point[2] / jnp.where(down, direction[2], -1.0)
+    landed = (point[0] + s * direction[0], point[1] + s * direction[1], jnp.zeros_like(s))
+    return landed, valid & down
+
+
+def _stack(components):
+    return jnp.stack(jnp.broadcast_arrays(*components), axis=-1)
+
+
+def lens_photons(scene: LensScene, grid: tuple[int, int], hit_iterations: int = 3) -> Photons:
+    """Trace a ``rows x cols`` grid of photons through a `LensScene`.
+
+    The grid's vertices span the aperture (``surface.extent``, rotated with the surface)
+    on the top surface's rest plane, edges included; each photon's line crosses that
+    plane there and meets the top surface at the root found by `hit_iterations` Newton
+    steps. It refracts into the glass, refracts out of the flat bottom (total internal
+    reflection there makes it invalid) and lands on the screen.
+    """
+    surface = scene.surface
+    dtype = surface.heights.dtype
+    x0, x1, y0, y1 = surface.extent
+    u, v, cell_area = _grid(x0, x1, y0, y1, grid, dtype)
+    # the grid turns with the surface about the extent's centre
+    cx, cy = 0.5 * (x0 + x1), 0.5 * (y0 + y1)
+    cos_r, sin_r = jnp.cos(surface.rotation), jnp.sin(surface.rotation)
+    px = cx + cos_r * (u - cx) - sin_r * (v - cy)
+    py = cy + sin_r * (u - cx) + cos_r * (v - cy)
+    top = scene.top
+    if isinstance(scene.light, DirectionalLight):
+        d = tuple(c.astype(dtype) for c in scene.light.unit_direction)
+        density = jnp.ones_like(px)
+    else:
+        lp = scene.light.position.astype(dtype)
+        offset = (px - lp[0], py - lp[1], top - lp[2])
+        r2 = sum(c * c for c in offset)
+        d = _normalise(offset)
+        density = scene.light.intensity * jnp.abs(d[2]) / r2
+    hit_x, hit_y, hit_z, hx, hy = ray_surface_hit(surface, top, px, py, d, hit_iterations)
+    normal = _normalise((-hx, -hy, jnp.ones_like(hx)))
+    up = (jnp.zeros_like(hx), jnp.zeros_like(hx), jnp.ones_like(hx))
+
+    positions, directions, densities, valids = [], [], [], []
+    for ior in scene.iors:
+        inside, _, cos_in = refract_components(d, normal, 1.0 / ior)
+        valid = (inside[2] < 0.0) & (hit_z > scene.throw)
+        s = (hit_z - scene.throw) / -jnp.where(valid, inside[2], -1.0)
+        bottom = (
+            hit_x + s * inside[0],
+            hit_y + s * inside[1],
+            jnp.broadcast_to(scene.throw, s.shape),
+        )
+        out, tir, cos_out = refract_components(inside, up, ior)
+        landed, valid = _land(bottom, out, valid & ~tir)
+        flux = density
+        if scene.fresnel:
+            flux = (
+                flux
+                * fresnel_transmittance(cos_in, 1.0 / ior)
+                * fresnel_transmittance(cos_out, ior)
+            )
+        positions.append(_stack(landed))
+        directions.append(_stack(out))
+        densities.append(jnp.where(valid, flux, 0.0))
+        valids.append(valid)
+    return Photons(
+        jnp.stack(positions),
+        jnp.stack(directions),
+        jnp.stack(densities),
+        jnp.stack(valids),
+        jnp.asarray(cell_area, dtype),
+    )
+
+
+def _emission_frame(scene: MeshScene, dtype):
+    """Centre, radius and unit axis of the emission disc that covers the generator."""
+    sg = jax.lax.stop_gradient
+    verts = sg(scene.generator.vertices).astype(dtype)
+    centre = 0.5 * (verts.min(axis=0) + verts.max(axis=0))
+    radius = jnp.max(jnp.linalg.norm(verts - centre, axis=-1))
+    if isinstance(scene.light, DirectionalLight):
+        axis = scene.light.unit_direction.astype(dtype)
+    else:
+        axis = centre - sg(scene.light.position).astype(dtype)
+        axis = axis / jnp.linalg.norm(axis)
+    # a helper vector not parallel to the axis, then an orthonormal basis
+    helper = jnp.where(
+        jnp.abs(axis[0]) < 0.9, jnp.array([1.0, 0, 0], dtype), jnp.array([0, 1.0, 0], dtype)
+    )
+    e1 = jnp.cross(axis, helper)
+    e1 = e1 / jnp.linalg.norm(e1)
+    e2 = jnp.cross(axis, e1)
+    return centre, radius, axis, e1, e2
+
+
+def _shading_normal(scene: MeshScene, face, bary, vnormals, fnormal):
+    if scene.normals == "flat":
+        return fnormal
+    n = jnp.einsum("pk,pkc->pc", bary, vnormals[scene.generator.faces[face]])
+    return n / jnp.linalg.norm(n, axis=-1, keepdims=True)
+
+
+def mesh_photons(
+    scene: MeshScene, grid: tuple[int, int], batch_size: int = 4096, margin: float = 0.02
+) -> Photons:
+    """Trace a ``rows x cols`` grid of photons through a `MeshScene`.
+
+    The grid spans the square ``[-r, r]^2`` (``r``: the generator's bounding radius,
+    widened by `margin`) on the plane through the generator's bounding-box centre,
+    perpendicular to the light (a point light's axis points at that centre). Each photon
+    follows up to ``scene.interfaces`` interface events (see `MeshScene`); which triangle
+    it meets is found by brute force over the triangles (`nearest_hits`, no derivative),
+    and the hit is recomputed from that triangle's vertices so the result is
+    differentiable with respect to them.
+    """
+    dtype = scene.generator.vertices.dtype
+    centre, radius, axis, e1, e2 = _emission_frame(scene, dtype)
+    half = radius * (1.0 + margin)
+    u, v, cell_area = _grid(-half, half, -half, half, grid, dtype)
+    plane = centre + u[..., None] * e1 + v[..., None] * e2  # (rows, cols, 3)
+    plane = plane.reshape(-1, 3)
+    if isinstance(scene.light, DirectionalLight):
+        d0 = jnp.broadcast_to(axis, plane.shape)
+        o0 = plane - 3.0 * radius * axis
+        density = jnp.full(plane.shape[:1], 1.0 / jnp.abs(axis[2]), dtype)
+    else:
+        lp = scene.light.position.astype(dtype)
+        o0 = jnp.broadcast_to(lp, plane.shape)
+        offset = plane - lp
+        r2 = jnp.sum(offset**2, axis=-1)
+        d0 = offset / jnp.sqrt(r2)[:, None]
+        density = scene.light.intensity * jnp.abs(d0 @ axis) / r2
+
+    verts = scene.generator.vertices
+    triangles = verts[scene.generator.faces]
+    fnormals = face_normals(verts, scene.generator.faces)
+    fnormals = fnormals / jnp.linalg.norm(fnormals, axis=-1, keepdims=True)
+    vnormals = vertex_normals(verts, scene.generator.faces) if scene.normals == "smooth" else None
+    occluders = (
+        jnp.concatenate([o.vertices[o.faces] for o in scene.occluders]).astype(dtype)
+        if scene.occluders
+        else None
+    )
+    # rays restart on the triangle they hit (excluded from their next search); `eps`
+    # only guards against re-hitting a neighbour through a shared edge by rounding
+    eps = 16 * jnp.finfo(dtype).eps * radius
+
+    def blocked(o, d, t_limit):
+        if occluders is None:
+            return jnp.zeros(o.shape[:1], bool)
+        t_occ, _ = nearest_hits(o, d, occluders, eps, batch_size)
+        return t_occ < t_limit
+
+    positions, directions, densities, valids = [], [], [], []
+    for ior in scene.iors:
+        o, d = o0, d0
+        alive = jnp.ones(o.shape[:1], bool)
+        inside = jnp.zeros(o.shape[:1], bool)
+        left = jnp.zeros(o.shape[:1], bool)  # left the generator for good
+        flux = density
+        last = jnp.full(o.shape[:1], -1, jnp.int32)
+        for event in range(scene.interfaces + 1):
+            t_near, face = nearest_hits(o, d, triangles, eps, batch_size, last)
+            hit = jnp.isfinite(t_near) & ~left
+            alive = alive & ~(blocked(o, d, t_near) & ~left)
+            if event == 0:
+                alive = alive & hit  # only light through the generator is rendered
+            if event == scene.interfaces:
+                alive = alive & ~hit  # the path needs more interfaces than allowed
+                break
+            left = left | ~hit
+            t, bary = hit_on_triangle(o, d, triangles[face])
+            point = o + t[:, None] * d
+            nf = fnormals[face]
+            normal = _shading_normal(scene, face, bary, vnormals, nf)
+            entering = jnp.sum(d * nf, axis=-1) < 0.0
+            if scene.material == "mirror":
+                new_d = reflect(d, normal)
+                factor = jnp.ones_like(t)
+            else:
+                eta = jnp.where(entering, 1.0 / ior, ior)
+                comps, tir, cos_i = refract_components(tuple(d.T), tuple(normal.T), eta)
+                new_d = jnp.stack(comps, axis=-1)
+                inside_now = jnp.where(tir, ~entering, entering)
+                inside = jnp.where(hit, inside_now, inside)
+                factor = (
+                    jnp.where(tir, 1.0, fresnel_transmittance(cos_i, eta))
+                    if scene.fresnel
+                    else jnp.ones_like(t)
+                )
+            last = jnp.where(hit, face, last)
+            o = jnp.where(hit[:, None], point, o)
+            d = jnp.where(hit[:, None], new_d, d)
+            flux = flux * jnp.where(hit, factor, 1.0)
+        alive = alive & ~inside
+        down = d[:, 2] < 0.0
+        t_floor = -o[:, 2] / jnp.where(down, d[:, 2], -1.0)
+        alive = alive & down & ~blocked(o, d, t_floor)
+        landed = o + t_floor[:, None] * d
+        landed = landed.at[:, 2].set(0.0)
+        rows, cols = grid
+        positions.append(landed.reshape(rows, cols, 3))
+        directions.append(d.reshape(rows, cols, 3))
+        densities.append(jnp.where(alive, flux, 0.0).reshape(rows, cols))
+        valids.append(alive.reshape(rows, cols))
+    return Photons(
+        jnp.stack(positions),
+        jnp.stack(directions),
+        jnp.stack(densities),
+        jnp.stack(valids),
+        jnp.asarray(cell_area, dtype),
+    )

@@ -1,0 +1,277 @@
+"""Caustic triangles on lens and mesh scenes: physics checks, folds, foci, gradients.
+
+Comparisons with the NumPy reference are in `test_triangles_reference.py`.
+"""
+
+import math
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+import trimesh
+
+import jaxcaustics as jc
+
+APERTURE = (0.0, 0.1, 0.0, 0.1)  # a 10 cm square lens
+SCREEN = (-0.01, 0.11, -0.01, 0.11)
+
+
+def lens_scene(
+    heights,
+    *,
+    light=None,
+    throw=0.2,
+    thickness=0.01,
+    shape=(48, 48),
+    dtype=None,
+    screen=SCREEN,
+    **kw,
+):
+    dtype = dtype or np.float64
+    light = light or jc.DirectionalLight.from_angles(0.0)
+    if isinstance(light, jc.DirectionalLight):
+        light = jc.DirectionalLight(np.asarray(light.direction, dtype))
+    return jc.LensScene(
+        jc.HeightField(np.asarray(heights, dtype), np.asarray(APERTURE, dtype), "clamp"),
+        light,
+        jc.PlaneReceiver(np.asarray(screen, dtype), shape),
+        np.asarray(thickness, dtype),
+        np.asarray(throw, dtype),
+        **kw,
+    )
+
+
+def plano_convex(n_samples, focal, ior=1.5, dtype=np.float64, cylindrical=False):
+    """Paraxial plano-convex top surface of focal length `focal` (curved side up);
+    `cylindrical`: curved along x only (a line focus)."""
+    radius = focal * (ior - 1.0)
+    x = (np.arange(n_samples) + 0.5) / n_samples * 0.1 - 0.05
+    xx, yy = np.meshgrid(x, x)
+    r2 = xx**2 if cylindrical else xx**2 + yy**2
+    return (-r2 / (2.0 * radius)).astype(dtype)
+
+
+def pixel_area(scene):
+    e = np.asarray(scene.receiver.extent)
+    rows, cols = scene.receiver.shape
+    return (e[1] - e[0]) / cols * (e[3] - e[2]) / rows
+
+
+def total_flux(result):
+    """Flux of the valid triangles (half a cell each, mean corner density)."""
+    ph = result.photons
+    d = np.where(np.asarray(ph.valid), np.asarray(ph.density), np.nan)
+    corners = [d[:, :-1, :-1], d[:, :-1, 1:], d[:, 1:, :-1], d[:, 1:, 1:]]
+    first = (corners[0] + corners[1] + corners[3]) / 3
+    second = (corners[0] + corners[3] + corners[2]) / 3
+    cell = float(ph.cell_area)
+    return 0.5 * cell * (np.nansum(first, axis=(1, 2)) + np.nansum(second, axis=(1, 2)))
+
+
+@pytest.mark.parametrize("reconstruction", ["exact", "gouraud"])
+def test_flat_slab_gives_the_light_it_receives(reconstruction):
+    scene = lens_scene(np.zeros((8, 8)))
+    result = jc.caustic_triangles(scene, photons=33, reconstruction=reconstruction)
+    image = np.asarray(result.image)
+    inner = image[8:-8, 8:-8]  # the aperture covers pixels 4..43
+    np.testing.assert_allclose(inner, 1.0, atol=1e-12)
+    assert image[:3].max() == 0.0 and image[:, -3:].max() == 0.0  # nothing outside
+    if reconstruction == "exact":  # exactly the aperture's 0.01 m^2
+        assert image.sum() * pixel_area(scene) == pytest.approx(0.01, rel=1e-12)
+
+
+def test_flat_slab_fresnel_is_the_product_of_both_faces():
+    scene = lens_scene(np.zeros((8, 8)), fresnel=True, ior=1.5)
+    image = np.asarray(jc.caustic_triangles(scene, photons=17).image)
+    t = 1.0 - ((1.5 - 1.0) / (1.5 + 1.0)) ** 2  # normal incidence, each face
+    np.testing.assert_allclose(image[8:-8, 8:-8], t * t, rtol=1e-12)
+
+
+def test_oblique_flat_slab_shifts_the_aperture_by_snell():
+    zenith, ior, thickness, throw = 25.0, 1.5, 0.02, 0.05
+    light = jc.DirectionalLight.from_angles(zenith, 0.0)
+    scene = lens_scene(
+        np.zeros((8, 8)),
+        light=light,
+        thickness=thickness,
+        throw=throw,
+        screen=(-0.01, 0.15, -0.03, 0.13),
+        shape=(80, 80),
+    )
+    result = jc.caustic_triangles(scene, photons=33)
+    image = np.asarray(result.image)
+    e = np.asarray(scene.receiver.extent)
+    xs = e[0] + (np.arange(80) + 0.5) * (e[1] - e[0]) / 80
+    ys = e[2] + (np.arange(80) + 0.5) * (e[3] - e[2]) / 80
+    centroid_x = (image.sum(0) * xs).sum() / image.sum()
+    centroid_y = (image.sum(1) * ys).sum() / image.sum()
+    sin_t = math.sin(math.radians(zenith)) / ior
+    shift = thickness * sin_t / math.sqrt(1 - sin_t**2) + throw * math.tan(math.radians(zenith))
+    assert centroid_x == pytest.approx(0.05 + shift, abs=1e-9)
+    assert centroid_y == pytest.approx(0.05, abs=1e-9)
+    assert float(result.missed_flux_fraction[0]) < 1e-12
+
+
+@pytest.mark.parametrize("dtype", [np.float32, np.float64])
+@pytest.mark.parametrize("reconstruction", ["exact", "gouraud"])
+def test_sharp_focus_is_finite_in_value_and_gradient(dtype, reconstruction):
+    focal = 0.2
+    heights = plano_convex(24, focal, dtype=dtype)
+    # back focal distance of a plano-convex lens: f - thickness / n
+    scene = lens_scene(heights, thickness=0.04, throw=focal - 0.04 / 1.5, dtype=dtype)
+
+    def peak(h):
+        s = eqx_replace_heights(scene, h)
+        return jc.caustic_triangles(s, photons=33, window=48, reconstruction=reconstruction).image
+
+    image = np.asarray(peak(jnp.asarray(heights)))
+    assert np.all(np.isfinite(image))
+    assert image.max() > 100.0  # the aperture's light squeezed onto a few pixels
+    grad = jax.grad(lambda h: jnp.sum(peak(h) ** 2))(jnp.asarray(heights))
+    assert grad.dtype == dtype and np.all(np.isfinite(np.asarray(grad)))
+
+
+def eqx_replace_heights(scene, heights):
+    import equinox as eqx
+
+    return eqx.tree_at(lambda s: s.surface.heights, scene, heights)
+
+
+def test_fold_overs_keep_their_flux():
+    # a cylindrical lens (back focal distance 0.3 - 0.02 / 1.5) with the screen well past
+    # its line focus: the image is mirrored along x, so every triangle is folded over
+    scene = lens_scene(
+        plano_convex(24, 0.3, cylindrical=True),
+        thickness=0.02,
+        throw=0.5,
+        screen=(-0.05, 0.15, -0.05, 0.15),
+    )
+    result = jc.caustic_triangles(scene, photons=33)
+    # all but those of the outer ring, where the clamped bicubic turns flat beyond the
+    # outermost samples
+    from jaxcaustics._methods.triangles import grid_triangles
+    from jaxcaustics._raster import signed_area
+
+    area = np.asarray(signed_area(grid_triangles(result.photons.position[..., :2])))
+    assert np.all(area.reshape(32, 32, 2)[2:-2, 2:-2] < 0)
+    image = np.asarray(result.image)
+    # overlap areas are sums of signed edge terms: zero only up to rounding
+    assert np.all(np.isfinite(image)) and image.min() >= -1e-12 * image.max()
+    landed = image.sum() * pixel_area(scene)
+    assert landed == pytest.approx(total_flux(result)[0], rel=1e-10)
+    assert float(result.missed_flux_fraction[0]) < 1e-10
+
+
+def test_gradients_match_finite_differences_away_from_folds(rng):
+    x = (np.arange(12) + 0.5) / 12 * 2 - 1
+    xx, yy = np.meshgrid(x, x)
+    heights = 4e-4 * np.exp(-((xx - 0.1) ** 2 + yy**2) / 0.3)
+    scene = lens_scene(heights, light=jc.DirectionalLight.from_angles(10.0, 40.0), throw=0.1)
+    weights = jnp.asarray(rng.uniform(0.5, 1.5, scene.receiver.shape))
+
+    def loss(h):
+        s = eqx_replace_heights(scene, h)
+        return jnp.sum(weights * jc.caustic_triangles(s, photons=21, window=6).image)
+
+    h0 = jnp.asarray(heights)
+    grad = jax.grad(loss)(h0)
+    for _ in range(3):
+        direction = jnp.asarray(rng.normal(size=heights.shape)) * 1e-4
+        eps = 1e-4
+        fd = (loss(h0 + eps * direction) - loss(h0 - eps * direction)) / (2 * eps)
+        assert float(jnp.vdot(grad, direction)) == pytest.approx(float(fd), rel=1e-5)
+
+
+def test_point_light_over_a_flat_slab_matches_the_inverse_square_law():
+    light = jc.PointLight([0.05, 0.05, 2.0], intensity=3.0)
+    scene = lens_scene(np.zeros((8, 8)), light=light, ior=1.0 + 1e-12, thickness=0.01, throw=0.2)
+    image = np.asarray(jc.caustic_triangles(scene, photons=65).image)
+    # index ~1: the slab does nothing; the centre pixel gets I cos(theta) / r^2
+    e = np.asarray(scene.receiver.extent)
+    centre = e[0] + (24 + 0.5) * (e[1] - e[0]) / 48
+    r = math.dist((centre, centre, 0.0), (0.05, 0.05, 2.0))
+    assert image[24, 24] == pytest.approx(3.0 * 2.0 / r**3, rel=1e-4)
+
+
+def sphere_scene(radius=0.5, subdivisions=2, *, ior=1.5, shape=(48, 48), **kw):
+    mesh = trimesh.creation.icosphere(subdivisions, radius=radius)
+    mesh.apply_translation([0.0, 0.0, 1.0])
+    return jc.MeshScene(
+        jc.Mesh.from_trimesh(mesh),
+        kw.pop("light", jc.DirectionalLight.from_angles(0.0)),
+        jc.PlaneReceiver((-1.0, 1.0, -1.0, 1.0), shape),
+        ior=ior,
+        **kw,
+    )
+
+
+def test_sphere_of_index_one_casts_its_shadow_disc_of_light():
+    scene = sphere_scene(ior=1.0)
+    result = jc.caustic_triangles(scene, photons=49)
+    image = np.asarray(result.image)
+    xs = -1 + (np.arange(48) + 0.5) * 2 / 48
+    r = np.hypot(*np.meshgrid(xs, xs))
+    np.testing.assert_allclose(image[r < 0.4], 1.0, atol=1e-9)  # light passes unchanged
+    assert image[r > 0.55].max() == 0.0
+
+
+def test_refractor_with_one_interface_renders_nothing():
+    result = jc.caustic_triangles(sphere_scene(interfaces=1), photons=17)
+    assert float(np.abs(np.asarray(result.image)).max()) == 0.0
+    assert not np.asarray(result.photons.valid).any()
+
+
+@pytest.mark.parametrize("dtype", [np.float32, np.float64])
+def test_total_internal_reflection_in_the_sphere_is_finite(dtype):
+    scene = sphere_scene(interfaces=4, fresnel=True, light=jc.DirectionalLight.from_angles(35.0))
+    vertices = jnp.asarray(scene.generator.vertices, dtype)
+    import equinox as eqx
+
+    scene = eqx.tree_at(lambda s: s.generator.vertices, scene, vertices)
+
+    def brightness(v):
+        s = eqx.tree_at(lambda s: s.generator.vertices, scene, v)
+        return jnp.sum(jc.caustic_triangles(s, photons=25, window=24).image ** 2)
+
+    value, grad = jax.value_and_grad(brightness)(vertices)
+    assert np.isfinite(float(value)) and float(value) > 0
+    assert grad.dtype == dtype and np.all(np.isfinite(np.asarray(grad)))
+
+
+def test_mesh_flux_is_accounted_for():
+    result = jc.caustic_triangles(sphere_scene(), photons=33)
+    landed = np.asarray(result.image).sum() * (2 / 48) ** 2
+    missed = float(result.missed_flux_fraction[0])
+    assert landed == pytest.approx(total_flux(result)[0] * (1 - missed), rel=1e-10)
+
+
+@pytest.mark.parametrize(
+    "knobs, match",
+    [
+        ({"photons": 1}, "photons"),
+        ({"photons": "many"}, "photons"),
+        ({"reconstruction": "splat"}, "reconstruction"),
+        ({"window": 0}, "window"),
+        ({"supersample": 0}, "supersample"),
+        ({"hit_iterations": -1}, "hit_iterations"),
+    ],
+)
+def test_bad_knobs_name_the_argument(knobs, match):
+    with pytest.raises(ValueError, match=match):
+        jc.caustic_triangles(lens_scene(np.zeros((4, 4))), **knobs)
+
+
+def test_render_dispatches_by_scene_type():
+    scene = lens_scene(np.zeros((4, 4)))
+    image, stats = jc.render(scene, photons=9, return_stats=True)
+    assert image.shape == scene.receiver.shape and "missed_flux_fraction" in stats
+    with pytest.raises(ValueError, match="scene"):
+        jc.caustic_triangles(object())
+
+
+def test_dispersion_gives_one_channel_per_index():
+    scene = lens_scene(plano_convex(16, 0.3), thickness=0.02, ior=(1.49, 1.51, 1.53))
+    image = np.asarray(jc.caustic_triangles(scene, photons=17).image)
+    assert image.shape == (48, 48, 3)
+    assert not np.allclose(image[..., 0], image[..., 2])
