@@ -150,11 +150,20 @@ def lens_photons(scene: LensScene, grid: tuple[int, int], hit_iterations: int = 
 
 
 def _emission_frame(scene: MeshScene, dtype):
-    """Centre, radius and unit axis of the emission disc that covers the generator."""
+    """Centre, half-width and unit axes of the emission square that covers the generator.
+
+    The centre and half-width are rounded outwards to a coarse grid (a sixteenth of the
+    power of two below the bounding radius), so that small changes of the vertices (an
+    optimisation step, a finite difference) leave the photon grid where it is.
+    """
     sg = jax.lax.stop_gradient
     verts = sg(scene.generator.vertices).astype(dtype)
     centre = 0.5 * (verts.min(axis=0) + verts.max(axis=0))
     radius = jnp.max(jnp.linalg.norm(verts - centre, axis=-1))
+    step = 2.0 ** jnp.floor(jnp.log2(radius)) / 16
+    centre = jnp.round(centre / step) * step
+    # rounding boundaries sit half a step off the grid, away from "round" sizes
+    radius = (jnp.ceil(jnp.max(jnp.linalg.norm(verts - centre, axis=-1)) / step + 0.5) + 1) * step
     if isinstance(scene.light, DirectionalLight):
         axis = scene.light.unit_direction.astype(dtype)
     else:
@@ -177,14 +186,12 @@ def _shading_normal(scene: MeshScene, face, bary, vnormals, fnormal):
     return n / jnp.linalg.norm(n, axis=-1, keepdims=True)
 
 
-def mesh_photons(
-    scene: MeshScene, grid: tuple[int, int], batch_size: int = 4096, margin: float = 0.02
-) -> Photons:
+def mesh_photons(scene: MeshScene, grid: tuple[int, int], batch_size: int = 4096) -> Photons:
     """Trace a ``rows x cols`` grid of photons through a `MeshScene`.
 
     The grid spans the square ``[-r, r]^2`` (``r``: the generator's bounding radius,
-    widened by `margin`) on the plane through the generator's bounding-box centre,
-    perpendicular to the light (a point light's axis points at that centre). Each photon
+    rounded up; see `_emission_frame`) on the plane through the generator's bounding-box
+    centre, perpendicular to the light (a point light's axis points at that centre). Each photon
     follows up to ``scene.interfaces`` interface events (see `MeshScene`); which triangle
     it meets is found by brute force over the triangles (`nearest_hits`, no derivative),
     and the hit is recomputed from that triangle's vertices so the result is
@@ -192,8 +199,7 @@ def mesh_photons(
     """
     dtype = scene.generator.vertices.dtype
     centre, radius, axis, e1, e2 = _emission_frame(scene, dtype)
-    half = radius * (1.0 + margin)
-    u, v, cell_area = _grid(-half, half, -half, half, grid, dtype)
+    u, v, cell_area = _grid(-radius, radius, -radius, radius, grid, dtype)
     plane = centre + u[..., None] * e1 + v[..., None] * e2  # (rows, cols, 3)
     plane = plane.reshape(-1, 3)
     if isinstance(scene.light, DirectionalLight):
