@@ -1,8 +1,9 @@
 """jaxcaustics: differentiable, jit-compiled caustics in JAX.
 
-Build a scene (`WaterScene` of a `HeightField`, a `DirectionalLight` and a
-`PlaneReceiver`), then `render` it. The NumPy reference lives in
-`jaxcaustics.reference` and imports no JAX.
+Build a scene (`WaterScene`: a `HeightField` water surface; `LensScene`: a glass slab
+with a height-field top; `MeshScene`: a glass or mirror `Mesh` with optional occluders;
+each with a `DirectionalLight` or `PointLight` and a `PlaneReceiver`), then `render` it.
+The NumPy reference lives in `jaxcaustics.reference` and imports no JAX.
 """
 
 import importlib.metadata
@@ -29,13 +30,22 @@ from ._mesh import (
     MeshScene as MeshScene,
 )
 from ._methods.triangles import (
+    CubeMapOptions as CubeMapOptions,
+)
+from ._methods.triangles import (
     TrianglesResult as TrianglesResult,
 )
 from ._methods.triangles import (
     caustic_triangles as caustic_triangles,
 )
 from ._methods.triangles import (
+    splat_photons as splat_photons,
+)
+from ._methods.triangles import (
     trace_photons as trace_photons,
+)
+from ._methods.triangles import (
+    triangles_image as triangles_image,
 )
 from ._methods.twopass import (
     TwoPassResult as TwoPassResult,

@@ -186,7 +186,9 @@ def _shading_normal(scene: MeshScene, face, bary, vnormals, fnormal):
     return n / jnp.linalg.norm(n, axis=-1, keepdims=True)
 
 
-def mesh_photons(scene: MeshScene, grid: tuple[int, int], batch_size: int = 4096) -> Photons:
+def mesh_photons(
+    scene: MeshScene, grid: tuple[int, int], batch_size: int = 4096, terminal=None
+) -> Photons:
     """Trace a ``rows x cols`` grid of photons through a `MeshScene`.
 
     The grid spans the square ``[-r, r]^2`` (``r``: the generator's bounding radius,
@@ -196,6 +198,11 @@ def mesh_photons(scene: MeshScene, grid: tuple[int, int], batch_size: int = 4096
     it meets is found by brute force over the triangles (`nearest_hits`, no derivative),
     and the hit is recomputed from that triangle's vertices so the result is
     differentiable with respect to them.
+
+    `terminal` (optional) replaces the exact last step (occluder test and landing on the
+    screen): a function ``(origins (P, 3), directions (P, 3)) -> (points (P, 3), found
+    (P,))`` giving where the rays leaving the generator end, for example by tracing them
+    in a layered distance map. Terminal points may then lie on occluders.
     """
     dtype = scene.generator.vertices.dtype
     centre, radius, axis, e1, e2 = _emission_frame(scene, dtype)
@@ -245,7 +252,7 @@ def mesh_photons(scene: MeshScene, grid: tuple[int, int], batch_size: int = 4096
         for event in range(scene.interfaces + 1):
             t_near, face = nearest_hits(o, d, triangles, eps, batch_size, last)
             hit = jnp.isfinite(t_near) & ~left
-            alive = alive & ~(blocked(o, d, t_near) & ~left)
+            alive = alive & ~(blocked(o, d, t_near) & hit)  # an occluder before the next hit
             if event == 0:
                 alive = alive & hit  # only light through the generator is rendered
             if event == scene.interfaces:
@@ -276,11 +283,15 @@ def mesh_photons(scene: MeshScene, grid: tuple[int, int], batch_size: int = 4096
             d = jnp.where(hit[:, None], new_d, d)
             flux = flux * jnp.where(hit, factor, 1.0)
         alive = alive & ~inside
-        down = d[:, 2] < 0.0
-        t_floor = -o[:, 2] / jnp.where(down, d[:, 2], -1.0)
-        alive = alive & down & ~blocked(o, d, t_floor)
-        landed = o + t_floor[:, None] * d
-        landed = landed.at[:, 2].set(0.0)
+        if terminal is None:
+            down = d[:, 2] < 0.0
+            t_floor = -o[:, 2] / jnp.where(down, d[:, 2], -1.0)
+            alive = alive & down & ~blocked(o, d, t_floor)
+            landed = o + t_floor[:, None] * d
+            landed = landed.at[:, 2].set(0.0)
+        else:
+            landed, found = terminal(o, d)
+            alive = alive & found
         rows, cols = grid
         positions.append(landed.reshape(rows, cols, 3))
         directions.append(d.reshape(rows, cols, 3))

@@ -334,3 +334,76 @@ def eqx_replace_position(photons, position):
     import equinox as eqx
 
     return eqx.tree_at(lambda p: p.position, photons, position)
+
+
+def occluded_sphere_scene():
+    """A ball lens over the screen, with a thin opaque slab below it covering the +x half
+    of its caustic."""
+    slab = trimesh.creation.box((0.8, 2.0, 0.05))
+    slab.apply_translation([0.55, 0.0, 0.12])
+    return sphere_scene(
+        shape=(64, 64),
+        occluders=[jc.Mesh.from_trimesh(slab)],
+        light=jc.DirectionalLight.from_angles(10.0, 0.0),
+    )
+
+
+def deep_shadow():
+    """Screen pixels that no ray from the sphere (x in [-0.5, 0.5], z in [0.5, 1.5]) can
+    reach past the slab (x in [0.15, 0.95], z in [0.095, 0.145])."""
+    xs = -1 + (np.arange(64) + 0.5) * 2 / 64
+    x, y = np.meshgrid(xs, xs)
+    return (x > 0.4) & (x < 0.85) & (np.abs(y) < 0.7)
+
+
+def test_distance_map_projection_does_not_leak_behind_occluders():
+    from jaxcaustics._methods.triangles import CubeMapOptions
+
+    scene = occluded_sphere_scene()
+    shadow = deep_shadow()
+    exact = np.asarray(jc.caustic_triangles(scene, photons=33).image)
+    tested = jc.caustic_triangles(
+        scene, photons=33, visibility="distance_map", cube_map=CubeMapOptions(resolution=64)
+    )
+    naive = jc.caustic_triangles(
+        scene,
+        photons=33,
+        visibility="distance_map",
+        cube_map=CubeMapOptions(resolution=64, shadow_test=False),
+    )
+    on_slab = np.asarray(tested.photons.position[0, ..., 2] > 0.05) & np.asarray(
+        tested.photons.valid[0]
+    )
+    assert on_slab.sum() > 100  # much of the caustic lands on the slab
+    assert exact[shadow].max() == 0.0
+    assert np.asarray(tested.image)[shadow].max() == 0.0  # no leak
+    leak = np.asarray(naive.image)[shadow].sum() / np.asarray(naive.image).sum()
+    assert leak > 0.05  # naive projection draws the slab's caustic on the screen behind it
+
+
+def test_distance_map_pipeline_agrees_with_exact_visibility():
+    """Without occluders the paper's pipeline (distance-map tracing, Gouraud triangles on
+    the light cube map, projection) approximates the screen-space triangles; measured
+    blurred relative L1 0.058 (64^2 texels per face) and 0.086 (128^2), flux 98%. Its
+    errors are those of point-sampled Gouraud triangles on the cube faces and of the
+    nearest-texel projection."""
+    from test_triangles_reference import rel_l1
+
+    from jaxcaustics._methods.triangles import CubeMapOptions
+
+    scene = sphere_scene(shape=(64, 64), light=jc.DirectionalLight.from_angles(10.0, 0.0))
+    exact = np.asarray(jc.caustic_triangles(scene, photons=33).image)
+    cube = np.asarray(
+        jc.caustic_triangles(
+            scene, photons=33, visibility="distance_map", cube_map=CubeMapOptions(resolution=64)
+        ).image
+    )
+    assert rel_l1(cube, exact) < 0.1
+    assert cube.sum() == pytest.approx(exact.sum(), rel=0.05)
+
+
+def test_distance_map_visibility_needs_a_mesh_scene():
+    with pytest.raises(ValueError, match="visibility"):
+        jc.caustic_triangles(lens_scene(np.zeros((4, 4))), visibility="distance_map")
+    with pytest.raises(ValueError, match="visibility"):
+        jc.caustic_triangles(lens_scene(np.zeros((4, 4))), visibility="cube")

@@ -104,17 +104,18 @@ def _screen_triangles(photons: Photons, extent, shape) -> _Triangles:
     return _Triangles(pixels, flux, valid)
 
 
-def _vertex_irradiance(tri: _Triangles, grid, pixel_area) -> Array:
-    """The paper's vertex irradiance ``dPhi / dA`` (a third of each adjacent triangle's
-    flux over a third of its area), per triangle corner ``(C, T, 3)``."""
-    area = jnp.abs(signed_area(tri.pixels)) * pixel_area
-    area = jnp.where(tri.valid, area, 0.0)
-    power = _scatter_to_vertices(jnp.broadcast_to(tri.flux[..., None] / 3, area.shape + (3,)), grid)
+def _vertex_irradiance(flux: Array, area: Array, valid: Array, grid) -> Array:
+    """The paper's vertex irradiance ``dPhi / dA``: a third of each adjacent triangle's
+    flux over a third of its area (on the surface it landed on), per triangle corner
+    ``(C, T, 3)``; `flux`, `area` and `valid` are per triangle ``(C, T)``."""
+    area = jnp.where(valid, area, 0.0)
+    flux = jnp.where(valid, flux, 0.0)
+    power = _scatter_to_vertices(jnp.broadcast_to(flux[..., None] / 3, area.shape + (3,)), grid)
     spread = _scatter_to_vertices(jnp.broadcast_to(area[..., None] / 3, area.shape + (3,)), grid)
-    # a vertex whose triangles all collapsed (a perfect focus) is given the area of a
-    # thousandth of a pixel: finite, and far brighter than anything resolvable
-    floor = 1e-3 * pixel_area
-    irradiance = power / jnp.maximum(spread, floor)
+    # a vertex whose triangles all collapsed (a perfect focus) is given a thousandth of
+    # its mean share of area: finite, and far brighter than anything resolvable
+    floor = 1e-3 * jnp.sum(area, axis=-1, keepdims=True) / jnp.maximum(1, area.shape[-1])
+    irradiance = power / jnp.maximum(spread, floor[..., None])
     rows, cols = grid
     index = grid_triangles(jnp.arange(rows * cols).reshape(1, rows, cols))[0]
     return irradiance.reshape(irradiance.shape[0], -1)[:, index]
@@ -157,7 +158,8 @@ def _triangles_image(
         def raster(v, e, m):
             return rasterize_gouraud(v, e, m, shape, window, supersample)
 
-        values = _vertex_irradiance(tri, photons.grid_shape, pixel_area)
+        area = jnp.abs(signed_area(tri.pixels)) * pixel_area
+        values = _vertex_irradiance(tri.flux, area, tri.valid, photons.grid_shape)
     images = jnp.stack(
         [
             _in_batches(raster, batch_size, shape, tri.pixels[c], values[c], tri.valid[c])
@@ -276,6 +278,98 @@ def _check_grid(photons) -> tuple[int, int]:
     return grid  # type: ignore[return-value]
 
 
+class CubeMapOptions(eqx.Module):
+    """Knobs of the paper's visibility pipeline (``visibility="distance_map"``).
+
+    - `resolution`: texels per cube-face edge of the distance and light cube maps.
+    - `layers`: surfaces kept per texel of the layered distance map.
+    - `linear_steps`, `secant_iterations`: the ray search in the distance map.
+    - `shadow_test`: use the light cube map's distances as a shadow map in the camera
+      pass (``False``: naive projection, which leaks light behind occluders).
+    - `tolerance`: relative distance tolerance of the shadow test.
+    - `window`: the rasteriser window on the cube faces, texels; ``None`` takes the
+      smallest that holds every triangle (needs concrete values, outside `jit`).
+    """
+
+    resolution: int = eqx.field(static=True, default=128)
+    layers: int = eqx.field(static=True, default=2)
+    linear_steps: int = eqx.field(static=True, default=32)
+    secant_iterations: int = eqx.field(static=True, default=4)
+    shadow_test: bool = eqx.field(static=True, default=True)
+    tolerance: float = eqx.field(static=True, default=0.02)
+    window: int | None = eqx.field(static=True, default=None)
+
+
+def _cube_centre(scene: MeshScene) -> Array:
+    verts = jax.lax.stop_gradient(scene.generator.vertices)
+    return 0.5 * (verts.min(axis=0) + verts.max(axis=0))
+
+
+@eqx.filter_jit
+def _distance_map_photons(scene: MeshScene, dmap, grid, batch_size, options: CubeMapOptions):
+    from .._distance_map import trace_distance_map
+
+    def terminal(origins, directions):
+        hit = trace_distance_map(
+            dmap,
+            origins,
+            directions,
+            linear_steps=options.linear_steps,
+            secant_iterations=options.secant_iterations,
+        )
+        return hit.point, hit.found
+
+    return mesh_photons(scene, grid, batch_size, terminal)
+
+
+@eqx.filter_jit
+def _cube_map_triangles(photons: Photons):
+    """Caustic triangles in space: corners ``(C, T, 3, 3)``, vertex irradiance on the
+    surface they landed on ``(C, T, 3)``, validity ``(C, T)``."""
+    corners = grid_triangles(photons.position)  # (C, T, 3, 3)
+    valid = grid_triangles(photons.valid).all(axis=-1)
+    flux = 0.5 * photons.cell_area * grid_triangles(photons.density).mean(axis=-1)
+    edge1 = corners[..., 1, :] - corners[..., 0, :]
+    edge2 = corners[..., 2, :] - corners[..., 0, :]
+    area = 0.5 * jnp.linalg.norm(jnp.cross(edge1, edge2), axis=-1)  # on the landing surface
+    irradiance = _vertex_irradiance(flux, area, valid, photons.grid_shape)
+    return corners, irradiance, valid
+
+
+def _cube_map_image(photons: Photons, centre, receiver: PlaneReceiver, options: CubeMapOptions):
+    from .._distance_map import light_cube_map, project_light_cube_map
+
+    corners, irradiance, valid = _cube_map_triangles(photons)
+    rows, cols = receiver.shape
+    x0, x1, y0, y1 = receiver.extent
+    xs = x0 + (jnp.arange(cols) + 0.5) * (x1 - x0) / cols
+    ys = y0 + (jnp.arange(rows) + 0.5) * (y1 - y0) / rows
+    gx, gy = jnp.meshgrid(xs, ys)
+    pixels = jnp.stack([gx, gy, jnp.zeros_like(gx)], axis=-1).reshape(-1, 3)
+    images = []
+    for c in range(corners.shape[0]):
+        lcm = light_cube_map(
+            centre, corners[c], irradiance[c], valid[c], options.resolution, options.window
+        )
+        lit = project_light_cube_map(
+            lcm, centre, pixels, shadow_test=options.shadow_test, tolerance=options.tolerance
+        )
+        images.append(lit.reshape(rows, cols))
+    return jnp.stack(images)
+
+
+def _distance_map_caustics(scene: MeshScene, grid, batch_size, options: CubeMapOptions):
+    from .._distance_map import build_distance_map
+
+    centre = _cube_centre(scene)
+    dmap = build_distance_map(centre, scene.occluders, options.resolution, options.layers)
+    ph = _distance_map_photons(scene, dmap, grid, batch_size, options)
+    images = _cube_map_image(ph, centre, scene.receiver, options)
+    # flux bookkeeping on the screen is not defined here (caustics may land on occluders)
+    missed = jnp.full(images.shape[:1], jnp.nan, images.dtype)
+    return ph, images, missed
+
+
 def caustic_triangles(
     scene: LensScene | MeshScene,
     *,
@@ -286,6 +380,8 @@ def caustic_triangles(
     hit_iterations: int = 3,
     batch_size: int = 4096,
     triangle_batch: int = 16384,
+    visibility: Literal["exact", "distance_map"] = "exact",
+    cube_map: CubeMapOptions | None = None,
 ) -> TrianglesResult:
     """Caustics of a lens or mesh scene by caustic triangles.
 
@@ -306,6 +402,15 @@ def caustic_triangles(
       ``batch_size x faces``).
     - `triangle_batch`: triangles rasterised at a time (memory ``triangle_batch x
       window^2``).
+    - `visibility`: mesh scenes: ``"exact"`` (rays leaving the generator are intersected
+      exactly with the occluders and the screen; triangles are drawn on the screen) or
+      ``"distance_map"`` (the paper's pipeline: rays are traced in a layered distance map
+      of the screen and the occluders around the generator, caustic triangles are drawn
+      with Gouraud interpolation onto a light cube map, and the camera pass projects it
+      onto the screen with a shadow-map distance test, so caustics landing on an
+      occluder do not leak onto the screen behind it). Its knobs: `cube_map`
+      (`CubeMapOptions`); `reconstruction`, `window` and `supersample` do not apply, and
+      the missed-flux fraction is NaN (light may land on occluders).
 
     **Returns:** a `TrianglesResult` (image, missed-flux fraction, photons).
     Differentiable with respect to the scene's arrays (the lens heights, the mesh
@@ -320,6 +425,15 @@ def caustic_triangles(
     ):
         if isinstance(value, bool) or not isinstance(value, int) or value < low:
             raise ValueError(f"`{name}` must be an int >= {low}, got {value!r}")
+    if visibility not in ("exact", "distance_map"):
+        raise ValueError(f"`visibility` must be 'exact' or 'distance_map', got {visibility!r}")
+    if visibility == "distance_map":
+        if not isinstance(scene, MeshScene):
+            raise ValueError("`visibility='distance_map'` needs a MeshScene")
+        ph, images, missed = _distance_map_caustics(
+            scene, grid, batch_size, cube_map or CubeMapOptions()
+        )
+        return TrianglesResult(_channels_last(scene, images), missed, ph)
     ph = trace_photons(scene, grid, hit_iterations, batch_size)
     images, missed = triangles_image(
         ph,
@@ -329,10 +443,12 @@ def caustic_triangles(
         supersample=supersample,
         batch_size=triangle_batch,
     )
-    image = (
-        jnp.moveaxis(images, 0, -1)
-        if isinstance(scene.ior, tuple)
-        and (isinstance(scene, LensScene) or scene.material == "refractor")
-        else images[0]
+    return TrianglesResult(_channels_last(scene, images), missed, ph)
+
+
+def _channels_last(scene, images: Array) -> Array:
+    """``(C, rows, cols)`` to the scene's image layout (2-D for a scalar index)."""
+    multi = isinstance(scene.ior, tuple) and (
+        isinstance(scene, LensScene) or scene.material == "refractor"
     )
-    return TrianglesResult(image, missed, ph)
+    return jnp.moveaxis(images, 0, -1) if multi else images[0]
