@@ -269,9 +269,11 @@ def trace_photons(scene, grid: tuple[int, int], hit_iterations: int = 3, batch_s
 def _check_grid(photons) -> tuple[int, int]:
     if isinstance(photons, (int, np.integer)) and not isinstance(photons, bool):
         photons = (int(photons), int(photons))
+    if isinstance(photons, str):
+        raise ValueError(f"`photons` must be an int or (rows, cols), got {photons!r}")
     try:
         grid = tuple(int(p) for p in photons)
-    except TypeError as err:
+    except (TypeError, ValueError) as err:
         raise ValueError(f"`photons` must be an int or (rows, cols), got {photons!r}") from err
     if len(grid) != 2 or min(grid) < 2:
         raise ValueError(f"`photons` must give at least 2 x 2 photons, got {photons!r}")
