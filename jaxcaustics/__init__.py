@@ -45,6 +45,9 @@ from ._methods.triangles import (
     trace_photons as trace_photons,
 )
 from ._methods.triangles import (
+    triangle_window as triangle_window,
+)
+from ._methods.triangles import (
     triangles_image as triangles_image,
 )
 from ._methods.twopass import (

@@ -167,14 +167,15 @@ def _triangles_image(
         ]
     )
     if reconstruction == "exact":
-        images = images / pixel_area
+        # overlap areas are sums of signed edge terms: clear their rounding below zero
+        images = jnp.maximum(images / pixel_area, 0.0)
     total = tri.flux.sum(axis=-1)
     landed = images.sum(axis=(1, 2)) * pixel_area
     missed = jnp.where(total > 0, 1.0 - landed / jnp.where(total > 0, total, 1.0), 0.0)
-    return images, missed
+    return images, jnp.clip(missed, 0.0, 1.0)
 
 
-def auto_window(photons: Photons, receiver: PlaneReceiver, flux_fraction: float = 0.999) -> int:
+def triangle_window(photons: Photons, receiver: PlaneReceiver, flux_fraction: float = 0.999) -> int:
     """The smallest triangle window (pixels) that holds whole the triangles carrying
     `flux_fraction` of the valid flux, capped at `MAX_AUTO_WINDOW`.
 
@@ -225,7 +226,7 @@ def triangles_image(
             raise ValueError(
                 "window='auto' needs concrete scene values; under jit/vmap pass an int"
             )
-        window = auto_window(photons, receiver)
+        window = triangle_window(photons, receiver)
     if isinstance(window, bool) or not isinstance(window, int) or window < 1:
         raise ValueError(f"`window` must be an int >= 1 or 'auto', got {window!r}")
     if isinstance(batch_size, bool) or not isinstance(batch_size, int) or batch_size < 1:
@@ -396,7 +397,7 @@ def caustic_triangles(
       ``"gouraud"`` (the paper's vertex irradiance with Gouraud interpolation).
     - `window`: each triangle touches a ``window x window`` block of pixels; ``"auto"``
       takes the smallest window that holds whole the triangles carrying 99.9% of the
-      flux (`auto_window`; needs concrete scene values: inside `jax.jit` pass an int).
+      flux (`triangle_window`; needs concrete scene values: inside `jax.jit` pass an int).
       Flux beyond it is reported as missed.
     - `supersample`: ``"gouraud"`` only: ``S x S`` point samples per pixel.
     - `hit_iterations`: lens scenes: Newton steps for the top-surface hit.
