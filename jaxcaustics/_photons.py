@@ -59,6 +59,17 @@ class Photons(eqx.Module):
         return self.density * self.cell_area * wy[:, None] * wx[None, :]
 
 
+def _stack_channels(positions, directions, densities, valids, cell_area, dtype) -> Photons:
+    """`Photons` from per-channel lists (channels first)."""
+    return Photons(
+        jnp.stack(positions),
+        jnp.stack(directions),
+        jnp.stack(densities),
+        jnp.stack(valids),
+        jnp.asarray(cell_area, dtype),
+    )
+
+
 def _grid(lo_u, hi_u, lo_v, hi_v, shape: tuple[int, int], dtype):
     """Vertices of a ``rows x cols`` grid spanning the rectangle (edges included)."""
     rows, cols = shape
@@ -140,13 +151,7 @@ def lens_photons(scene: LensScene, grid: tuple[int, int], hit_iterations: int = 
         directions.append(_stack(out))
         densities.append(jnp.where(valid, flux, 0.0))
         valids.append(valid)
-    return Photons(
-        jnp.stack(positions),
-        jnp.stack(directions),
-        jnp.stack(densities),
-        jnp.stack(valids),
-        jnp.asarray(cell_area, dtype),
-    )
+    return _stack_channels(positions, directions, densities, valids, cell_area, dtype)
 
 
 def _emission_frame(scene: MeshScene, dtype):
@@ -297,10 +302,4 @@ def mesh_photons(
         directions.append(d.reshape(rows, cols, 3))
         densities.append(jnp.where(alive, flux, 0.0).reshape(rows, cols))
         valids.append(alive.reshape(rows, cols))
-    return Photons(
-        jnp.stack(positions),
-        jnp.stack(directions),
-        jnp.stack(densities),
-        jnp.stack(valids),
-        jnp.asarray(cell_area, dtype),
-    )
+    return _stack_channels(positions, directions, densities, valids, cell_area, dtype)

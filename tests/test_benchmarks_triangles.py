@@ -1,5 +1,5 @@
 """Smoke test: the caustic triangles benchmark runs in its quick mode and writes its
-table and plot. Slow (about a minute and a half on 2 cores, mostly compilation)."""
+table and plot. Slow (about a minute on 2 cores, mostly compilation)."""
 
 import importlib.util
 from pathlib import Path
