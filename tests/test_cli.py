@@ -143,3 +143,14 @@ def test_readme_python_example_runs(tmp_path, monkeypatch):
     assert namespace["image"].shape == (300, 400)
     assert float(namespace["stats"]["missed_flux_fraction"][0]) < 1e-6  # "(here 0)"
     assert (tmp_path / "caustics.png").is_file()
+
+
+def test_readme_glass_example_runs(tmp_path, monkeypatch):
+    readme = (Path(__file__).resolve().parent.parent / "README.md").read_text()
+    code = readme.split("```python\n")[2].split("```", 1)[0]
+    monkeypatch.chdir(tmp_path)
+    namespace: dict = {}
+    exec(compile(code, "README.md", "exec"), namespace)
+    assert namespace["image"].shape == (128, 128)
+    assert namespace["result"].image.shape == (64, 64)
+    assert float(namespace["result"].image.max()) > 1.0  # the ball focuses light
