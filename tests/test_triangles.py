@@ -138,16 +138,21 @@ def eqx_replace_heights(scene, heights):
     return eqx.tree_at(lambda s: s.surface.heights, scene, heights)
 
 
-def test_fold_overs_keep_their_flux():
+@pytest.mark.parametrize("reconstruction", ["exact", "gouraud"])
+@pytest.mark.parametrize("dtype", [np.float32, np.float64])
+def test_fold_overs_keep_their_flux(dtype, reconstruction):
     # a cylindrical lens (back focal distance 0.3 - 0.02 / 1.5) with the screen well past
     # its line focus: the image is mirrored along x, so every triangle is folded over
+    heights = plano_convex(24, 0.3, cylindrical=True, dtype=dtype)
     scene = lens_scene(
-        plano_convex(24, 0.3, cylindrical=True),
-        thickness=0.02,
-        throw=0.5,
-        screen=(-0.05, 0.15, -0.05, 0.15),
+        heights, thickness=0.02, throw=0.5, screen=(-0.05, 0.15, -0.05, 0.15), dtype=dtype
     )
-    result = jc.caustic_triangles(scene, photons=33)
+
+    def render(h):
+        s = eqx_replace_heights(scene, h)
+        return jc.caustic_triangles(s, photons=33, window=32, reconstruction=reconstruction)
+
+    result = render(jnp.asarray(heights))
     # all but those of the outer ring, where the clamped bicubic turns flat beyond the
     # outermost samples
     from jaxcaustics._methods.triangles import grid_triangles
@@ -156,11 +161,14 @@ def test_fold_overs_keep_their_flux():
     area = np.asarray(signed_area(grid_triangles(result.photons.position[..., :2])))
     assert np.all(area.reshape(32, 32, 2)[2:-2, 2:-2] < 0)
     image = np.asarray(result.image)
-    # overlap areas are sums of signed edge terms: zero only up to rounding
-    assert np.all(np.isfinite(image)) and image.min() >= -1e-12 * image.max()
-    landed = image.sum() * pixel_area(scene)
-    assert landed == pytest.approx(total_flux(result)[0], rel=1e-10)
-    assert float(result.missed_flux_fraction[0]) < 1e-10
+    assert np.all(np.isfinite(image)) and image.min() >= 0.0
+    grad = jax.grad(lambda h: jnp.sum(render(h).image ** 2))(jnp.asarray(heights))
+    assert grad.dtype == dtype and np.all(np.isfinite(np.asarray(grad)))
+    if reconstruction == "exact":  # flux kept to rounding
+        landed = image.sum() * pixel_area(scene)
+        rel = 1e-10 if dtype == np.float64 else 1e-4
+        assert landed == pytest.approx(total_flux(result)[0], rel=rel)
+        assert float(result.missed_flux_fraction[0]) < rel
 
 
 def test_gradients_match_finite_differences_away_from_folds(rng):

@@ -128,7 +128,8 @@ def _point_lit_lens():
     "make, photons_ref, tolerance, flux_tolerance",
     [
         (_occluded, 1024, 0.03, 0.025),
-        (
+        # two more mesh cases (about 11 s each): run on request (`-m slow`)
+        pytest.param(
             lambda: sphere_scene(
                 shape=(64, 64),
                 fresnel=True,
@@ -138,12 +139,14 @@ def _point_lit_lens():
             1024,
             0.01,
             0.01,
+            marks=pytest.mark.slow,
         ),
-        (
+        pytest.param(
             lambda: sphere_scene(shape=(64, 64), light=jc.PointLight([0.3, 0.2, 3.0])),
             1024,
             0.02,
             0.015,
+            marks=pytest.mark.slow,
         ),
         (_point_lit_lens, 2048, 0.005, 0.01),
     ],
