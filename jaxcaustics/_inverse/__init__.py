@@ -1,0 +1,1 @@
+"""Inverse design: recover a scene's parameters from the caustics it casts."""

@@ -1,0 +1,139 @@
+"""Long optimisations in rounds: checkpoints, resume, a progress bar, clean Ctrl-C.
+
+An optimisation is written as a deterministic sequence of *rounds*, each a function
+``state -> state`` (for example a few solver steps at one resolution). After every
+round the state is written to a checkpoint file (atomically: a temporary file renamed
+over the old one). A run that is interrupted (Ctrl-C, a killed job) and started again
+with ``resume=True`` loads the last checkpoint and goes on with the next round, so it
+ends at exactly the state an uninterrupted run reaches.
+
+States are pytrees of arrays and Python scalars (dicts, lists, tuples, Equinox modules
+with array leaves); they are stored as an ``.npz`` file with their tree structure
+checked on load.
+"""
+
+from __future__ import annotations
+
+import os
+import time
+from collections.abc import Callable, Sequence
+from pathlib import Path
+from typing import Any
+
+import jax
+import numpy as np
+
+FORMAT = "jaxcaustics-checkpoint-1"
+
+
+def save_checkpoint(path: str | os.PathLike, state: Any, round_index: int) -> Path:
+    """Write `state` (after `round_index` rounds) to `path` atomically; returns the path."""
+    path = Path(path)
+    leaves, treedef = jax.tree_util.tree_flatten(state)
+    arrays = {f"leaf_{k}": np.asarray(leaf) for k, leaf in enumerate(leaves)}
+    tmp = path.with_name(path.name + ".tmp.npz")
+    np.savez(
+        tmp,
+        __format__=np.array(FORMAT),
+        __tree__=np.array(str(treedef)),
+        __round__=np.array(round_index),
+        **arrays,
+    )
+    os.replace(tmp, path)
+    return path
+
+
+def load_checkpoint(path: str | os.PathLike, like: Any) -> tuple[Any, int]:
+    """Read a checkpoint written by `save_checkpoint` into the structure of `like`.
+
+    **Returns:** ``(state, rounds_done)``. Raises `ValueError` naming `path` if the file
+    is missing, unreadable, or holds a state of another structure or shape.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise ValueError(f"`path` {str(path)!r}: no checkpoint there")
+    try:
+        with np.load(path, allow_pickle=False) as data:
+            if str(data["__format__"]) != FORMAT:
+                raise ValueError("not a jaxcaustics checkpoint")
+            tree = str(data["__tree__"])
+            rounds_done = int(data["__round__"])
+            stored = [data[f"leaf_{k}"] for k in range(len(data.files) - 3)]
+    except (OSError, KeyError, ValueError) as err:
+        raise ValueError(f"`path` {str(path)!r} is not a readable checkpoint: {err}") from err
+    leaves, treedef = jax.tree_util.tree_flatten(like)
+    if tree != str(treedef) or len(stored) != len(leaves):
+        raise ValueError(f"`path` {str(path)!r} holds a state of another structure")
+    restored = []
+    for new, old in zip(stored, leaves, strict=True):
+        old_shape = np.shape(old)
+        if new.shape != old_shape:
+            raise ValueError(
+                f"`path` {str(path)!r} holds an array of shape {new.shape} where "
+                f"{old_shape} is expected"
+            )
+        restored.append(new if isinstance(old, (np.ndarray, jax.Array)) else new.item())
+    state = jax.tree_util.tree_unflatten(treedef, restored)
+    return jax.tree_util.tree_map(
+        lambda new, old: (
+            jax.numpy.asarray(new, dtype=old.dtype) if isinstance(old, jax.Array) else new
+        ),
+        state,
+        like,
+    ), rounds_done
+
+
+def run_rounds(
+    rounds: Sequence[Callable[[Any], Any]],
+    state: Any,
+    *,
+    checkpoint: str | os.PathLike | None = None,
+    resume: bool = False,
+    describe: Callable[[Any], str] | None = None,
+    progress: bool = True,
+    label: str = "optimising",
+) -> tuple[Any, int, bool]:
+    """Run `rounds` in order from `state`, checkpointing after each.
+
+    **Arguments:**
+
+    - `rounds`: functions ``state -> state``; deterministic, so that a resumed run ends
+      where an uninterrupted one does.
+    - `state`: the initial state (also the structure a checkpoint is read into).
+    - `checkpoint`: file to write after every round (``None``: no checkpoints).
+    - `resume`: start from `checkpoint` if it exists (its rounds are skipped).
+    - `describe`: ``state -> str`` for the progress bar (for example the loss).
+    - `progress`: show a progress bar (tqdm) with rounds, elapsed time and `describe`.
+    - `label`: the progress bar's label.
+
+    **Returns:** ``(state, rounds_done, interrupted)``. On Ctrl-C (`KeyboardInterrupt`)
+    the run stops after saving nothing new (the last checkpoint stays valid) and returns
+    the last completed state with ``interrupted=True``.
+    """
+    done = 0
+    if resume and checkpoint is not None and Path(checkpoint).is_file():
+        state, done = load_checkpoint(checkpoint, state)
+    bar = None
+    if progress:
+        from tqdm.auto import tqdm
+
+        bar = tqdm(total=len(rounds), initial=done, desc=label, unit="round")
+    start = time.perf_counter()
+    interrupted = False
+    try:
+        for index in range(done, len(rounds)):
+            new_state = rounds[index](state)
+            jax.block_until_ready(new_state)
+            state, done = new_state, index + 1
+            if checkpoint is not None:
+                save_checkpoint(checkpoint, state, done)
+            if bar is not None:
+                info = describe(state) if describe is not None else ""
+                bar.set_postfix_str(f"{info} {time.perf_counter() - start:.1f} s".strip())
+                bar.update(1)
+    except KeyboardInterrupt:
+        interrupted = True
+    finally:
+        if bar is not None:
+            bar.close()
+    return state, done, interrupted

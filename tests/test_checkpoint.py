@@ -1,0 +1,69 @@
+"""Rounds with checkpoints: resume ends where an uninterrupted run ends."""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from jaxcaustics._inverse.checkpoint import load_checkpoint, run_rounds, save_checkpoint
+
+
+def _descent_round(state):
+    """A few steps of gradient descent on a small least-squares problem."""
+    x = state["x"]
+    for _ in range(5):
+        x = x - 0.1 * jax.grad(lambda v: jnp.sum((v - jnp.arange(v.size)) ** 2))(x)
+    return {"x": x, "steps": state["steps"] + 5, "loss": jnp.sum((x - jnp.arange(x.size)) ** 2)}
+
+
+def _initial():
+    return {"x": jnp.zeros(4), "steps": 0, "loss": jnp.asarray(0.0)}
+
+
+def test_save_and_load_round_trip(tmp_path):
+    state = {"x": jnp.arange(3.0), "steps": 7, "nested": (jnp.ones((2, 2)), 1.5)}
+    path = save_checkpoint(tmp_path / "c.npz", state, 3)
+    loaded, rounds = load_checkpoint(path, state)
+    assert rounds == 3 and loaded["steps"] == 7 and loaded["nested"][1] == 1.5
+    np.testing.assert_array_equal(loaded["x"], state["x"])
+    assert loaded["x"].dtype == state["x"].dtype
+
+
+def test_interrupted_run_resumes_to_the_same_result(tmp_path):
+    rounds = [_descent_round] * 6
+    straight, done, interrupted = run_rounds(rounds, _initial(), progress=False)
+    assert done == 6 and not interrupted
+
+    calls = {"n": 0}
+
+    def ctrl_c_in_round_4(state):
+        calls["n"] += 1
+        if calls["n"] == 1:
+            raise KeyboardInterrupt
+        return _descent_round(state)
+
+    path = tmp_path / "run.npz"
+    broken = rounds[:3] + [ctrl_c_in_round_4] + rounds[4:]
+    partial, done, interrupted = run_rounds(broken, _initial(), checkpoint=path)
+    assert interrupted and done == 3 and path.is_file()
+    resumed, done, interrupted = run_rounds(broken, _initial(), checkpoint=path, resume=True)
+    assert done == 6 and not interrupted
+    np.testing.assert_array_equal(resumed["x"], straight["x"])
+    assert resumed["steps"] == straight["steps"] == 30
+
+
+def test_bad_checkpoints_name_the_path(tmp_path):
+    with pytest.raises(ValueError, match="path"):
+        load_checkpoint(tmp_path / "missing.npz", _initial())
+    garbage = tmp_path / "garbage.npz"
+    garbage.write_bytes(b"not a zip file")
+    with pytest.raises(ValueError, match="path"):
+        load_checkpoint(garbage, _initial())
+    path = save_checkpoint(tmp_path / "other.npz", {"y": jnp.zeros(2)}, 1)
+    with pytest.raises(ValueError, match="structure"):
+        load_checkpoint(path, _initial())
+    path = save_checkpoint(
+        tmp_path / "shape.npz", {"x": jnp.zeros(5), "steps": 0, "loss": jnp.asarray(0.0)}, 1
+    )
+    with pytest.raises(ValueError, match="shape"):
+        load_checkpoint(path, _initial())
