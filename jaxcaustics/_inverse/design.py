@@ -1,0 +1,713 @@
+"""Caustic lens design: from a target image to the height field of a lens (`design_lens`).
+
+The forward model is the lens scene (`LensScene`: screen ``z = 0``, flat bottom face at
+``z = throw``, top surface ``z = throw + thickness + H(x, y)``). Two methods:
+
+- ``"transport"`` (default): the light transport equation on the lens plane. A photon
+  grid over the aperture is traced exactly (`lens_photons`, the forward model of the
+  caustic triangles); each cell of the grid lands on a quadrilateral of the screen whose
+  area times the target irradiance at its centroid must equal the flux the cell carries:
+  ``r = log E(centroid) + log A_landed - log flux = 0`` per cell, plus the second
+  boundary condition (the aperture's edge lands on the screen's edge). The system is
+  solved as a nonlinear least-squares problem by Optimistix (Levenberg-Marquardt or
+  Gauss-Newton) with matrix-free Lineax normal conjugate gradients (JVPs and VJPs of the
+  residual), right-preconditioned by the inverse of the weak-lens Laplacian
+  (``h = P u``, ``P = ((n - 1) D Laplacian)^-1`` by a DCT Poisson solve with Neumann
+  boundaries), started from the weak-lens Poisson solution and run coarse to fine.
+- ``"least_squares"``: fit the caustic-triangles image itself (exact reconstruction) to
+  the target, both scaled to unit mean over the mask, with a small smoothness prior,
+  by the same solver and preconditioner; started from the transport design of the
+  coarsest level.
+
+Weak-lens relation (collimated light along ``-z``): a photon through the aperture point
+``p`` lands near ``p + D grad H(p)`` with ``D = (n - 1) (throw + thickness / n)``; the
+continuity equation linearised gives ``D Laplacian(H) = -log(E / mean E)`` (bright
+target: locally convex lens).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import time
+from collections.abc import Callable, Sequence
+from typing import Any, Literal
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import lineax as lx
+import numpy as np
+import optimistix as optx
+
+from .._optics import refract_components
+from .._photons import _grid, lens_photons
+from .._scene import DirectionalLight, HeightField, LensScene, PlaneReceiver, PointLight
+from .._surface import ray_surface_hit
+
+METHODS = ("transport", "least_squares")
+SOLVERS = ("levenberg_marquardt", "gauss_newton")
+
+
+# --------------------------------------------------------------------------- result
+
+
+@dataclasses.dataclass
+class LensDesign:
+    """Result of `design_lens`.
+
+    - `heights`: ``(rows, cols)`` NumPy array, metres: the top surface relative to its
+      rest plane, with ``max(heights) = 0`` (``thickness`` is the blank's thickness, the
+      design is milled into it; the thinnest point is ``thickness + min(heights)``).
+    - `scene`: the `LensScene` (receiver: the screen's pixel grid, the target's shape).
+    - `predicted`: the forward model's caustic on the screen (caustic triangles, exact
+      reconstruction), ``(rows, cols)``, irradiance as `caustic_triangles` gives it.
+    - `target`: the target as used (float, scaled to the flux of the lens, masked).
+    - `loss_history`: ``0.5 * sum(residual^2)`` after every solver step, all levels.
+    - `levels`: per level: heights shape, steps, final loss, Optimistix result code,
+      seconds (compilation included) and seconds of the first call (compilation).
+    - `result`: the Optimistix result of the last level (``optx.RESULTS``).
+    - `timings`: ``{"total": s, "initial_guess": s, "predict": s}``.
+    - `method`: the method used.
+    """
+
+    heights: np.ndarray
+    scene: LensScene
+    predicted: np.ndarray
+    target: np.ndarray
+    loss_history: list[float]
+    levels: list[dict[str, Any]]
+    result: Any
+    timings: dict[str, float]
+    method: str
+
+    @property
+    def relief(self) -> float:
+        """Depth of the relief, metres (``max(heights) - min(heights)``)."""
+        return float(np.max(self.heights) - np.min(self.heights))
+
+
+# --------------------------------------------------------------------------- validation
+
+
+def _positive(value, name: str) -> float:
+    try:
+        v = float(value)
+    except (TypeError, ValueError) as err:
+        raise ValueError(f"`{name}` must be a positive number (metres), got {value!r}") from err
+    if not (math.isfinite(v) and v > 0):
+        raise ValueError(f"`{name}` must be positive and finite (metres), got {value!r}")
+    return v
+
+
+def _check_target(target) -> np.ndarray:
+    try:
+        t = np.asarray(target, dtype=float)
+    except (TypeError, ValueError) as err:
+        raise ValueError(f"`target` must be a numeric image, got {type(target).__name__}") from err
+    if t.ndim == 3 and t.shape[-1] in (3, 4):
+        t = t[..., :3] @ np.array([0.2126, 0.7152, 0.0722])  # luminance of an RGB image
+    if t.ndim != 2:
+        raise ValueError(f"`target` must be a 2-D image (rows, cols), got shape {t.shape}")
+    if min(t.shape) < 4:
+        raise ValueError(f"`target` needs at least 4x4 pixels, got shape {t.shape}")
+    if not np.all(np.isfinite(t)):
+        raise ValueError("`target` contains NaN or infinite values")
+    if np.any(t < 0):
+        raise ValueError("`target` must be non-negative (an irradiance image)")
+    if not np.any(t > 0):
+        raise ValueError("`target` is all zeros: there is nothing to design for")
+    return t
+
+
+def _check_mask(mask, shape) -> np.ndarray:
+    if mask is None:
+        return np.ones(shape, bool)
+    m = np.asarray(mask)
+    if m.shape != tuple(shape):
+        raise ValueError(f"`mask` must have the target's shape {tuple(shape)}, got {m.shape}")
+    if m.dtype != bool:
+        if not np.issubdtype(m.dtype, np.number) or not np.all(np.isin(m, (0, 1))):
+            raise ValueError("`mask` must be boolean (or 0/1)")
+        m = m.astype(bool)
+    if not m.any():
+        raise ValueError("`mask` is all False: no pixel may receive light")
+    return m
+
+
+def _level_shape(n: int, width: float, height: float) -> tuple[int, int]:
+    """Heights shape with `n` samples along the longer side of the aperture."""
+    if width >= height:
+        return max(4, round(n * height / width)), n
+    return n, max(4, round(n * width / height))
+
+
+# --------------------------------------------------------------------------- pieces
+
+
+def _neumann_poisson(rhs: jax.Array, dx: float, dy: float) -> jax.Array:
+    """Solve ``Laplacian(u) = rhs`` on a cell-centred grid with zero-flux (Neumann)
+    boundaries by a DCT-II; the mean of ``rhs`` is ignored and ``u`` has zero mean."""
+    rows, cols = rhs.shape
+    coef = jax.scipy.fft.dctn(rhs, type=2, norm="ortho")
+    ky = (2.0 * jnp.cos(jnp.pi * jnp.arange(rows) / rows) - 2.0) / dy**2
+    kx = (2.0 * jnp.cos(jnp.pi * jnp.arange(cols) / cols) - 2.0) / dx**2
+    lam = ky[:, None] + kx[None, :]
+    lam = lam.at[0, 0].set(1.0)
+    coef = (coef / lam).at[0, 0].set(0.0)
+    return jax.scipy.fft.idctn(coef, type=2, norm="ortho")
+
+
+def _area_average(image: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
+    """Resample `image` to `shape` by exact box (area) averaging, any ratio."""
+
+    def matrix(n_in, n_out):
+        edges_in = np.linspace(0, 1, n_in + 1)
+        edges_out = np.linspace(0, 1, n_out + 1)
+        lo = np.maximum(edges_out[:-1, None], edges_in[None, :-1])
+        hi = np.minimum(edges_out[1:, None], edges_in[None, 1:])
+        w = np.clip(hi - lo, 0, None)
+        return w / w.sum(axis=1, keepdims=True)
+
+    return matrix(image.shape[0], shape[0]) @ image @ matrix(image.shape[1], shape[1]).T
+
+
+def _bilinear(image: jax.Array, px: jax.Array, py: jax.Array) -> jax.Array:
+    """Bilinear interpolation of `image` at pixel coordinates (centre of pixel ``(i, j)``
+    at ``(j + 0.5, i + 0.5)``), edge values extended outwards."""
+    rows, cols = image.shape
+    u = jnp.clip(px - 0.5, 0.0, cols - 1.0)
+    v = jnp.clip(py - 0.5, 0.0, rows - 1.0)
+    j0 = jnp.clip(jnp.floor(u), 0, cols - 2).astype(jnp.int32)
+    i0 = jnp.clip(jnp.floor(v), 0, rows - 2).astype(jnp.int32)
+    fu, fv = u - j0, v - i0
+    a = image[i0, j0]
+    b = image[i0, j0 + 1]
+    c = image[i0 + 1, j0]
+    d = image[i0 + 1, j0 + 1]
+    return (1 - fv) * ((1 - fu) * a + fu * b) + fv * ((1 - fu) * c + fu * d)
+
+
+def _safe_log_area(area: jax.Array, floor: jax.Array) -> jax.Array:
+    """``log(area)``, continued smoothly (and monotonically) below `floor` so that folded
+    (negative) cells give a large finite residual with a useful gradient."""
+    safe = jnp.where(area > floor, area, floor)
+    return jnp.where(area > floor, jnp.log(safe), jnp.log(floor) + (area - floor) / floor)
+
+
+class _Problem(eqx.Module):
+    """Everything a level's residual needs (arrays are leaves; shapes static)."""
+
+    scene: LensScene
+    target: jax.Array  # (rows, cols) screen irradiance to reach (floor included)
+    log_target: jax.Array
+    screen: jax.Array  # (4,) extent
+    weak: float = eqx.field(static=True)  # D of the weak-lens relation
+    grid: tuple[int, int] = eqx.field(static=True)  # photon grid (vertices)
+    boundary_weight: float = eqx.field(static=True)
+    hit_iterations: int = eqx.field(static=True)
+    sampling: tuple | None  # separable bicubic weights at the photon grid (vertical light)
+    dx: float = eqx.field(static=True)
+    dy: float = eqx.field(static=True)
+
+    def heights(self, u: jax.Array) -> jax.Array:
+        """Right preconditioner: ``h = (D Laplacian)^-1 u`` (zero mean)."""
+        return _neumann_poisson(u, self.dx, self.dy) / self.weak
+
+    def photons(self, h: jax.Array):
+        h = h - jax.lax.stop_gradient(jnp.max(h))  # the blank's top is the rest plane
+        scene = eqx.tree_at(lambda s: s.surface.heights, self.scene, h)
+        return lens_photons(scene, self.grid)
+
+    def landing(self, h: jax.Array):
+        """Where the photons of the grid land, ``(x, y)``, and their flux density: the
+        physics of `lens_photons` (unrotated aperture, one index), written lean."""
+        h = h - jax.lax.stop_gradient(jnp.max(h))
+        scene = self.scene
+        surface = eqx.tree_at(lambda s: s.heights, scene.surface, h)
+        x0, x1, y0, y1 = surface.extent
+        px, py, cell_area = _grid(x0, x1, y0, y1, self.grid, h.dtype)
+        top = scene.top
+        if isinstance(scene.light, DirectionalLight):
+            d = tuple(c.astype(h.dtype) for c in scene.light.unit_direction)
+            density = jnp.ones_like(px)
+        else:
+            lp = scene.light.position.astype(h.dtype)
+            offset = (px - lp[0], py - lp[1], top - lp[2])
+            inv = jax.lax.rsqrt(sum(c * c for c in offset))
+            d = tuple(c * inv for c in offset)
+            density = scene.light.intensity * jnp.abs(d[2]) * inv * inv
+        if self.sampling is not None:  # vertical light: the hits are the grid points
+            wy, dwy, wx, dwx = self.sampling
+            hit_x, hit_y = px, py
+            hit_z = top + wy @ h @ wx.T
+            hx, hy = wy @ h @ dwx.T, dwy @ h @ wx.T
+        else:
+            hit_x, hit_y, hit_z, hx, hy = ray_surface_hit(
+                surface, top, px, py, d, self.hit_iterations
+            )
+        inv = jax.lax.rsqrt(hx * hx + hy * hy + 1.0)
+        normal = (-hx * inv, -hy * inv, inv)
+        inside, _, _ = refract_components(d, normal, 1.0 / scene.ior)
+        s = (hit_z - scene.throw) / -jnp.minimum(inside[2], -1e-12)
+        bx, by = hit_x + s * inside[0], hit_y + s * inside[1]
+        up = (jnp.zeros_like(hx), jnp.zeros_like(hx), jnp.ones_like(hx))
+        out, _, _ = refract_components(inside, up, scene.ior)
+        t = scene.throw / -jnp.minimum(out[2], -1e-12)
+        return bx + t * out[0], by + t * out[1], density, cell_area
+
+    def transport_residual(self, u: jax.Array, args=None):
+        x, y, density, cell_area = self.landing(self.heights(u))
+        # materialise the landing points: XLA would otherwise fuse (and recompute) the
+        # whole trace into each of the shifted slices below, tens of times slower
+        x, y = jax.lax.optimization_barrier((x, y))
+        # quadrilateral a (i, j), b (i, j + 1), c (i + 1, j + 1), d (i + 1, j)
+        xa, xb, xc, xd = x[:-1, :-1], x[:-1, 1:], x[1:, 1:], x[1:, :-1]
+        ya, yb, yc, yd = y[:-1, :-1], y[:-1, 1:], y[1:, 1:], y[1:, :-1]
+        area = 0.5 * ((xc - xa) * (yd - yb) - (xd - xb) * (yc - ya))
+        flux = (
+            cell_area
+            * 0.25
+            * (density[:-1, :-1] + density[:-1, 1:] + density[1:, 1:] + density[1:, :-1])
+        )
+        rows, cols = self.target.shape
+        sx0, sx1, sy0, sy1 = self.screen
+        pdx, pdy = (sx1 - sx0) / cols, (sy1 - sy0) / rows
+        cx = 0.25 * (xa + xb + xc + xd)
+        cy = 0.25 * (ya + yb + yc + yd)
+        log_e = _bilinear(self.log_target, (cx - sx0) / pdx, (cy - sy0) / pdy)
+        cell0 = jax.lax.stop_gradient(jnp.mean(flux))
+        interior = log_e + _safe_log_area(area, 1e-3 * cell0) - jnp.log(flux)
+        w = self.boundary_weight
+        edges = jnp.concatenate(
+            [
+                (x[:, 0] - sx0) / pdx,
+                (x[:, -1] - sx1) / pdx,
+                (y[0, :] - sy0) / pdy,
+                (y[-1, :] - sy1) / pdy,
+            ]
+        )
+        return interior, w * edges
+
+
+def _catmull_rom_matrix(n: int, lo: float, hi: float, points: np.ndarray):
+    """Weights ``W (len(points), n)`` and their derivative ``dW`` (per metre) of the
+    clamped Catmull-Rom interpolant of `n` cell-centred samples over ``[lo, hi]`` (the
+    library's `HeightField`, one axis: the surface is separable)."""
+    step = (hi - lo) / n
+    u = np.clip((points - lo) / step - 0.5, -2.0, n + 1.0)
+    base = np.floor(u)
+    t = u - base
+    t2, t3 = t * t, t * t * t
+    w = [
+        0.5 * (-t3 + 2 * t2 - t),
+        0.5 * (3 * t3 - 5 * t2 + 2),
+        0.5 * (-3 * t3 + 4 * t2 + t),
+        0.5 * (t3 - t2),
+    ]
+    dw = [
+        0.5 * (-3 * t2 + 4 * t - 1),
+        0.5 * (9 * t2 - 10 * t),
+        0.5 * (-9 * t2 + 8 * t + 1),
+        0.5 * (3 * t2 - 2 * t),
+    ]
+    weights = np.zeros((points.size, n))
+    deriv = np.zeros((points.size, n))
+    rows = np.arange(points.size)
+    for k in range(4):
+        tap = np.clip(base.astype(int) - 1 + k, 0, n - 1)
+        np.add.at(weights, (rows, tap), w[k])
+        np.add.at(deriv, (rows, tap), dw[k] / step)
+    return weights, deriv
+
+
+def _sampling(shape, aperture, grid):
+    """Separable weights of the heights' bicubic at the photon grid's vertices."""
+    (rows, cols), (prow, pcol) = shape, grid
+    x0, x1, y0, y1 = aperture
+    wx, dwx = _catmull_rom_matrix(cols, x0, x1, np.linspace(x0, x1, pcol))
+    wy, dwy = _catmull_rom_matrix(rows, y0, y1, np.linspace(y0, y1, prow))
+    return tuple(jnp.asarray(a) for a in (wy, dwy, wx, dwx))
+
+
+def _vertical(light: DirectionalLight) -> bool:
+    d = np.asarray(light.direction, dtype=float)
+    return bool(abs(d[0]) + abs(d[1]) == 0.0)
+
+
+def _flat_flux(flat: LensScene) -> float:
+    """Flux through the aperture (what the flat lens emits towards the screen)."""
+    ph = lens_photons(flat, (65, 65))
+    d = np.asarray(ph.density)[0]
+    cells = 0.25 * (d[:-1, :-1] + d[:-1, 1:] + d[1:, 1:] + d[1:, :-1])
+    return float(np.sum(cells) * float(ph.cell_area))
+
+
+def _laplacian(h: jax.Array, dx: float, dy: float) -> jax.Array:
+    """The 5-point Laplacian with zero-flux boundaries (the inverse of `_neumann_poisson`
+    up to the mean)."""
+    p = jnp.pad(h, 1, mode="edge")
+    return (p[1:-1, 2:] + p[1:-1, :-2] - 2 * h) / dx**2 + (
+        p[2:, 1:-1] + p[:-2, 1:-1] - 2 * h
+    ) / dy**2
+
+
+def _resample_heights(h: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
+    """The bicubic surface of `h` sampled at the sample centres of a `shape` grid."""
+    from .._surface import height_and_gradient
+
+    field = HeightField(h, np.array([0.0, 1.0, 0.0, 1.0]), "clamp")
+    rows, cols = shape
+    x = (np.arange(cols) + 0.5) / cols
+    y = (np.arange(rows) + 0.5) / rows
+    xx, yy = np.meshgrid(x, y)
+    return np.asarray(height_and_gradient(field, jnp.asarray(xx), jnp.asarray(yy))[0])
+
+
+def _transport_residual(u, problem: _Problem):
+    return problem.transport_residual(u)
+
+
+def _image_residual(u, args):
+    """Residual of the image fit: the caustic-triangles image and the target, both at unit
+    mean over the mask, plus a smoothness prior on the heights (slopes over the weak-lens
+    scale)."""
+    from .._methods.triangles import triangles_image
+
+    problem, m, goal, smooth, window = args
+    tgt = jnp.where(m, goal, 0.0)
+    tgt = tgt / (jnp.sum(tgt) / jnp.sum(m))
+    h = problem.heights(u)
+    ph = problem.photons(h)
+    img, _ = triangles_image(ph, problem.scene.receiver, reconstruction="exact", window=window)
+    img = img[0]
+    img = img / (jnp.sum(jnp.where(m, img, 0.0)) / jnp.sum(m))
+    gx = jnp.diff(h, axis=1) / problem.dx
+    gy = jnp.diff(h, axis=0) / problem.dy
+    scale = smooth * problem.weak / problem.dx
+    return img - tgt, (scale * gx, scale * gy)
+
+
+# --------------------------------------------------------------------------- solver loop
+
+
+def _make_solver(name: str, cg_steps: int, rtol: float):
+    linear = lx.Normal(lx.CG(rtol=1e-3, atol=1e-8, max_steps=cg_steps))
+    if name == "gauss_newton":
+        return optx.GaussNewton(rtol=rtol, atol=1e-9, linear_solver=linear)
+    return optx.LevenbergMarquardt(rtol=rtol, atol=1e-9, linear_solver=linear)
+
+
+class _WithAux(eqx.Module):
+    fn: Callable = eqx.field(static=True)
+
+    def __call__(self, y, args):
+        return self.fn(y, args), None
+
+
+@eqx.filter_jit
+def _solver_init(fn, solver, y, args):
+    wrapped = _WithAux(fn)
+    f_struct = jax.eval_shape(fn, y, args)
+    return solver.init(wrapped, y, args, {}, f_struct, None, frozenset())
+
+
+@eqx.filter_jit
+def _solver_step(fn, solver, y, state, args):
+    """One solver step (module level, so repeated designs of one shape reuse it)."""
+    wrapped = _WithAux(fn)
+    y, state, _ = solver.step(wrapped, y, args, {}, state, frozenset())
+    done, result = solver.terminate(wrapped, y, args, {}, state, frozenset())
+    r = fn(y, args)
+    loss = 0.5 * sum(jnp.sum(c**2) for c in jax.tree_util.tree_leaves(r))
+    return y, state, done, result, loss
+
+
+def _run_level(fn, solver, u0, args, max_steps: int, history: list, callback, level_info):
+    """Step an Optimistix least-squares solver interactively (loss after each step).
+
+    `fn(u, args)` is the residual; `args` (the problem's arrays) is passed through
+    `filter_jit` as an argument, not closed over, so XLA does not constant-fold it."""
+    t0 = time.perf_counter()
+    state = _solver_init(fn, solver, u0, args)
+    y = u0
+    result = optx.RESULTS.successful
+    compile_s = None
+    steps = 0
+    for steps in range(1, max_steps + 1):
+        y, state, done, result, loss = _solver_step(fn, solver, y, state, args)
+        loss = float(loss)
+        if compile_s is None:
+            compile_s = time.perf_counter() - t0
+        history.append(loss)
+        if callback is not None:
+            callback({**level_info, "step": steps, "loss": loss})
+        if bool(done):
+            break
+    else:
+        result = optx.RESULTS.max_steps_reached
+    return y, steps, result, compile_s or 0.0, time.perf_counter() - t0
+
+
+# --------------------------------------------------------------------------- the API
+
+
+def design_lens(
+    target,
+    *,
+    width: float,
+    height: float,
+    thickness: float,
+    throw: float,
+    ior: float = 1.5,
+    light: DirectionalLight | PointLight | None = None,
+    mask=None,
+    heights_shape: tuple[int, int] | None = None,
+    screen_extent: Sequence[float] | None = None,
+    method: Literal["transport", "least_squares"] = "transport",
+    levels: Sequence[int] = (32, 64, 128),
+    max_steps: int = 12,
+    solver: Literal["levenberg_marquardt", "gauss_newton"] = "levenberg_marquardt",
+    oversample: int = 1,
+    floor: float = 0.02,
+    boundary_weight: float = 1.0,
+    cg_steps: int = 30,
+    rtol: float = 1e-4,
+    smooth: float = 1e-3,
+    window: int = 8,
+    predict_photons: int | None = None,
+    throw_errors: bool = True,
+    callback: Callable[[dict], None] | None = None,
+) -> LensDesign:
+    """Design the height-field top surface of a caustic lens whose caustic on a screen
+    matches `target`.
+
+    **Arguments** (lengths in metres):
+
+    - `target`: the image to project, ``(rows, cols)`` (an RGB image is turned into
+      luminance), non-negative; only its shape matters for the screen's pixel grid and
+      its relative brightness (the design is invariant to scaling it).
+    - `width`, `height`: the lens aperture (x and y extents), centred on ``x = y = 0``.
+    - `thickness`: the blank's thickness, bottom face to the top surface's highest point.
+    - `throw`: distance from the bottom face to the screen.
+    - `ior`: index of refraction of the glass.
+    - `light`: a `DirectionalLight` or a `PointLight`; default: collimated, straight down.
+    - `mask`: boolean ``(rows, cols)``: pixels that may receive light; outside it the
+      target is dark (up to the `floor`).
+    - `heights_shape`: the final heights grid; default: the last level along the longer
+      side of the aperture, the other side in proportion.
+    - `screen_extent`: ``(x_min, x_max, y_min, y_max)`` of the screen; default: the
+      flat lens's footprint (the aperture traced to the screen).
+    - `method`: ``"transport"`` or ``"least_squares"`` (see the module docstring).
+    - `levels`: heights samples along the longer side, coarse to fine.
+    - `max_steps`: solver steps per level.
+    - `solver`: ``"levenberg_marquardt"`` or ``"gauss_newton"`` (both with Lineax
+      `NormalCG`, matrix-free, `cg_steps` iterations at most).
+    - `oversample`: photon cells per heights sample along each axis (transport).
+    - `floor`: a uniform irradiance added to the unit-mean target (the transport
+      equation needs light everywhere on the screen; black regions get this much).
+    - `boundary_weight`: weight of the boundary condition (pixels of misplacement).
+    - `smooth`: weight of the smoothness prior (``"least_squares"``).
+    - `window`: triangle window of the image fit, pixels (``"least_squares"``).
+    - `predict_photons`: photon grid of the predicted caustic (default 4 per pixel side).
+    - `throw_errors`: raise if a level's solver fails (otherwise the result says so).
+    - `callback`: called after every solver step with a dict (level, shape, step, loss).
+
+    **Returns:** a `LensDesign`. Invalid specifications raise `ValueError` naming the
+    argument before any optimisation starts.
+    """
+    t_start = time.perf_counter()
+    width = _positive(width, "width")
+    height = _positive(height, "height")
+    thickness = _positive(thickness, "thickness")
+    throw = _positive(throw, "throw")
+    if isinstance(ior, (list, tuple)):
+        raise ValueError("`ior` must be a single number (design one channel at a time)")
+    ior = _positive(ior, "ior")
+    if ior <= 1.0:
+        raise ValueError(f"`ior` must be > 1 for a glass lens in air, got {ior}")
+    t = _check_target(target)
+    m = _check_mask(mask, t.shape)
+    if method not in METHODS:
+        raise ValueError(f"`method` must be one of {METHODS}, got {method!r}")
+    if solver not in SOLVERS:
+        raise ValueError(f"`solver` must be one of {SOLVERS}, got {solver!r}")
+    try:
+        levels = [int(n) for n in levels]
+    except TypeError as err:
+        raise ValueError(f"`levels` must be a sequence of ints, got {levels!r}") from err
+    if not levels or min(levels) < 4:
+        raise ValueError(f"`levels` must be a non-empty sequence of ints >= 4, got {levels!r}")
+    for name, value, low in (
+        ("max_steps", max_steps, 1),
+        ("oversample", oversample, 1),
+        ("cg_steps", cg_steps, 1),
+    ):
+        if isinstance(value, bool) or not isinstance(value, int) or value < low:
+            raise ValueError(f"`{name}` must be an int >= {low}, got {value!r}")
+    if not (isinstance(floor, (int, float)) and 0 < floor < 1):
+        raise ValueError(f"`floor` must be in (0, 1), got {floor!r}")
+    shapes = [_level_shape(n, width, height) for n in levels]
+    if heights_shape is not None:
+        try:
+            hs = tuple(int(s) for s in heights_shape)
+        except TypeError as err:
+            raise ValueError(
+                f"`heights_shape` must be (rows, cols), got {heights_shape!r}"
+            ) from err
+        if len(hs) != 2 or min(hs) < 4:
+            raise ValueError(f"`heights_shape` must be (rows, cols) >= 4, got {heights_shape!r}")
+        shapes[-1] = hs
+    if light is None:
+        light = DirectionalLight(np.array([0.0, 0.0, -1.0]))
+    elif not isinstance(light, (DirectionalLight, PointLight)):
+        raise ValueError(
+            f"`light` must be a DirectionalLight or a PointLight, got {type(light).__name__}"
+        )
+    aperture = np.array([-width / 2, width / 2, -height / 2, height / 2])
+    dtype = jnp.result_type(float)
+    flat = LensScene(
+        HeightField(np.zeros((4, 4)), aperture, "clamp"),
+        light,
+        PlaneReceiver(np.array([-1.0, 1.0, -1.0, 1.0]), t.shape),
+        thickness,
+        throw,
+        ior=ior,
+    )
+    if screen_extent is None:
+        corners = lens_photons(flat, (2, 2))
+        if not bool(np.all(np.asarray(corners.valid))):
+            raise ValueError("`light` does not reach the screen through the flat lens")
+        xy = np.asarray(corners.position)[0, ..., :2].reshape(-1, 2)
+        screen = np.array([xy[:, 0].min(), xy[:, 0].max(), xy[:, 1].min(), xy[:, 1].max()])
+    else:
+        screen = np.asarray(screen_extent, dtype=float)
+        if screen.shape != (4,) or not (screen[1] > screen[0] and screen[3] > screen[2]):
+            raise ValueError(
+                f"`screen_extent` must be (x_min, x_max, y_min, y_max), got {screen_extent!r}"
+            )
+    receiver = PlaneReceiver(screen, t.shape)
+
+    # the target: unit mean over the screen, masked, plus the floor, scaled to the flux
+    tm = np.where(m, t, 0.0)
+    tm = tm / tm.mean()
+    goal = (tm + floor) / (1.0 + floor)
+    pixel_area = (screen[1] - screen[0]) * (screen[3] - screen[2]) / t.size
+    flux_scale = _flat_flux(flat) / (goal.sum() * pixel_area)
+
+    vertical = isinstance(light, DirectionalLight) and _vertical(light)
+    weak = (ior - 1.0) * (throw + thickness / ior)
+    if isinstance(light, PointLight):  # a diverging beam: the screen is magnified
+        lz = float(np.asarray(light.position)[2])
+        weak *= (lz) / max(lz - throw - thickness, 1e-12)
+
+    # ------------------------------------------------------------ initial guess
+    t0 = time.perf_counter()
+    rows0, cols0 = shapes[0]
+    goal0 = _area_average(goal, (rows0, cols0))
+    dx0, dy0 = width / cols0, height / rows0
+    u = jnp.asarray(-np.log(goal0), dtype)
+    h0 = np.asarray(_neumann_poisson(u, dx0, dy0)) / weak
+    relief0 = float(h0.max() - h0.min())
+    if relief0 >= thickness:
+        raise ValueError(
+            f"`thickness` {thickness} m is too thin: the weak-lens estimate of the relief is "
+            f"{relief0:.4g} m, so the surface would dip through the bottom face"
+        )
+    timings = {"initial_guess": time.perf_counter() - t0}
+
+    history: list[float] = []
+    level_reports: list[dict[str, Any]] = []
+    result = optx.RESULTS.successful
+    sol = _make_solver(solver, cg_steps, rtol)
+    h = None
+    for k, shape in enumerate(shapes):
+        rows, cols = shape
+        dx, dy = width / cols, height / rows
+        if k == 0:
+            u = jnp.asarray(-np.log(goal0), dtype)
+        else:
+            # carry the heights to the finer grid, then back to the preconditioned variable
+            h_fine = _resample_heights(h, shape)
+            u = _laplacian(jnp.asarray(h_fine), dx, dy) * weak
+        scene = LensScene(
+            HeightField(np.zeros(shape), aperture, "clamp"),
+            light,
+            receiver,
+            thickness,
+            throw,
+            ior=ior,
+        )
+        level_goal = jnp.asarray(goal, dtype)
+        problem_grid = (oversample * rows + 1, oversample * cols + 1)
+        problem = _Problem(
+            scene,
+            level_goal,
+            jnp.log(level_goal * flux_scale),
+            jnp.asarray(screen, dtype),
+            weak,
+            (oversample * rows + 1, oversample * cols + 1),
+            float(boundary_weight),
+            3,
+            _sampling(shape, aperture, problem_grid) if vertical else None,
+            dx,
+            dy,
+        )
+        if method == "transport" or k == 0:
+            fn, args = _transport_residual, problem
+        else:
+            fn, args = _image_residual, (problem, jnp.asarray(m), jnp.asarray(goal), smooth, window)
+        info = {
+            "level": k,
+            "shape": shape,
+            "method": "transport" if fn is problem.transport_residual else method,
+        }
+        u, steps, result, compile_s, seconds = _run_level(
+            fn, sol, u, args, max_steps, history, callback, info
+        )
+        h = np.asarray(problem.heights(u))
+        h = h - h.max()
+        level_reports.append(
+            {
+                "shape": shape,
+                "steps": steps,
+                "loss": history[-1] if history else float("nan"),
+                "result": result,
+                "seconds": seconds,
+                "first_step_seconds": compile_s,
+            }
+        )
+        if throw_errors and result not in (
+            optx.RESULTS.successful,
+            optx.RESULTS.max_steps_reached,
+        ):
+            raise RuntimeError(f"level {k} ({shape}): the solver failed: {result}")
+        if not np.all(np.isfinite(h)):
+            raise RuntimeError(f"level {k} ({shape}): the heights are not finite")
+
+    assert h is not None
+    if thickness + h.min() <= 0.0:
+        msg = (
+            f"`thickness` {thickness} m is too thin for the design: its relief is "
+            f"{h.max() - h.min():.4g} m, so the surface dips through the bottom face"
+        )
+        raise ValueError(msg)
+    final = LensScene(HeightField(h, aperture, "clamp"), light, receiver, thickness, throw, ior=ior)
+    t0 = time.perf_counter()
+    from .._methods.triangles import caustic_triangles
+
+    n_pred = predict_photons or 4 * max(t.shape) + 1
+    predicted = np.asarray(caustic_triangles(final, photons=n_pred).image)
+    timings["predict"] = time.perf_counter() - t0
+    timings["total"] = time.perf_counter() - t_start
+    return LensDesign(
+        heights=h,
+        scene=final,
+        predicted=predicted,
+        target=goal * flux_scale,
+        loss_history=history,
+        levels=level_reports,
+        result=result,
+        timings=timings,
+        method=method,
+    )
