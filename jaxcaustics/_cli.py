@@ -22,6 +22,8 @@ from pathlib import Path
 
 import numpy as np
 
+from ._cli_design import add_design
+
 # Above this missed-flux fraction the image is visibly too dark: warn.
 MISSED_FLUX_WARNING = 0.01
 
@@ -465,7 +467,7 @@ def _render_water(args: argparse.Namespace) -> int:
 # --------------------------------------------------------------------------- main
 
 # Each entry adds one top-level subcommand to the subparsers it is given.
-_COMMANDS: list[Callable[[argparse._SubParsersAction], None]] = [_add_render]
+_COMMANDS: list[Callable[[argparse._SubParsersAction], None]] = [_add_render, add_design]
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -478,6 +478,7 @@ def design_lens(
     predict_photons: int | None = None,
     throw_errors: bool = True,
     callback: Callable[[dict], None] | None = None,
+    initial=None,
 ) -> LensDesign:
     """Design the height-field top surface of a caustic lens whose caustic on a screen
     matches `target`.
@@ -512,6 +513,8 @@ def design_lens(
     - `predict_photons`: photon grid of the predicted caustic (default 4 per pixel side).
     - `throw_errors`: raise if a level's solver fails (otherwise the result says so).
     - `callback`: called after every solver step with a dict (level, shape, step, loss).
+    - `initial`: heights (metres, any grid shape) to start the first level from instead
+      of the weak-lens Poisson solution (how a run is continued level by level).
 
     **Returns:** a `LensDesign`. Invalid specifications raise `ValueError` naming the
     argument before any optimisation starts.
@@ -624,7 +627,10 @@ def design_lens(
     for k, shape in enumerate(shapes):
         rows, cols = shape
         dx, dy = width / cols, height / rows
-        if k == 0:
+        if k == 0 and initial is not None:  # continue from given heights
+            h_start = _resample_heights(np.asarray(initial, float), shape)
+            u = _laplacian(jnp.asarray(h_start), dx, dy) * weak
+        elif k == 0:
             u = jnp.asarray(-np.log(goal0), dtype)
         else:
             # carry the heights to the finer grid, then back to the preconditioned variable
