@@ -1,0 +1,731 @@
+"""Recover a water surface from the caustics it casts (inverse two-pass rendering).
+
+Given a target caustic image and the scene's known parts (rest depth, light, index of
+refraction, extents), `recover_surface` finds the height field whose two-pass caustic
+(`jaxcaustics.two_pass`) matches the target, as a nonlinear least-squares problem solved
+with Optimistix.
+
+**Unknowns.** The heights are solved for in a scaled unit
+``u = heights / height_scale`` with ``height_scale = dA / (rest_depth |1 - 1/n|)``
+(``dA``: the area of one receiver pixel, ``n``: the index of refraction). For small
+slopes the caustic of a surface is ``1 - rest_depth (1 - 1/n) Laplacian(heights)``, so
+in this unit the image's contrast is about the Laplacian of ``u`` in receiver pixels:
+the unknowns are O(1) for any caustic of O(1) contrast, and the tolerances mean the
+same thing at every scale.
+
+**Residuals** (their sum of squares is the objective):
+
+- ``(render(heights) - target) / sqrt(pixels)``: the image misfit (mean square);
+- ``sqrt(smoothness) * Laplacian(u) / sqrt(samples)``: a smoothness prior, the discrete
+  five-point Laplacian of ``u`` in receiver-pixel units (periodic or clamped like the
+  surface), i.e. the image contrast that the curvature would cause. ``smoothness`` is a
+  dimensionless weight relative to the image misfit;
+- ``mean(u)``: the mean height is (nearly) unobservable, so it is pinned to zero.
+
+**Solvers.** ``"levenberg_marquardt"`` and ``"gauss_newton"`` solve the least-squares
+problem matrix-free: each (damped) Gauss-Newton step solves its normal equations by a
+truncated conjugate gradient (`lineax.Normal(lineax.CG(...))`, `cg_steps` iterations of
+one Jacobian-vector and one vector-Jacobian product each). ``"bfgs"`` minimises the sum
+of squares with `optimistix.BFGS`. ``"adam"`` is a plain Adam loop in JAX (Optax is not
+a dependency of this package).
+
+**Coarse to fine.** `coarse_to_fine` lists downsampling factors of the height grid,
+ending with 1: each level is solved on a grid ``ceil(shape / factor)``, and its solution,
+evaluated through the surface's own bicubic interpolant at the next grid's samples, is
+the next level's initial guess. The image is always compared at full resolution.
+
+**The gather window** of the two-pass method must be fixed (integers) inside a solve.
+With ``samples_x="auto"`` each level's window is the `auto_window` of that level's
+initial surface plus a margin of `WINDOW_MARGIN` pixels on each side, and at least
+``N = 5, M = 4``; the result reports the missed-flux fraction of the final surface,
+which says whether the window was large enough.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import os
+import time
+from collections.abc import Callable, Sequence
+from typing import Any, Literal
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import lineax as lx
+import numpy as np
+import optimistix as optx
+from jaxtyping import Array
+
+from .._io import read_image
+from .._methods.twopass import auto_window, two_pass
+from .._scene import (
+    BOUNDARY_MODES,
+    DirectionalLight,
+    HeightField,
+    PlaneReceiver,
+    WaterScene,
+    _check_extent,
+    _check_ior,
+    _check_positive_scalar,
+)
+from .._surface import height_and_gradient
+
+SOLVERS = ("levenberg_marquardt", "gauss_newton", "bfgs", "adam")
+WINDOW_MARGIN = 1  # pixels added on each side of the automatic window
+MIN_WINDOW = (5, 4)  # the smallest automatic window
+INITIAL_RIPPLE = 0.05  # scaled units: the random ripple of the default initial guess
+
+Solver = Literal["levenberg_marquardt", "gauss_newton", "bfgs", "adam"]
+
+
+# ------------------------------------------------------------------ results
+
+
+@dataclasses.dataclass(frozen=True)
+class RecoveryLevel:
+    """One level of the coarse-to-fine solve.
+
+    - `level`: index of the level (0 is the coarsest).
+    - `shape`: ``(rows, cols)`` of the height grid solved for.
+    - `heights`: the level's solution, metres (as solved: mean not removed).
+    - `initial_loss`: the objective at the level's initial guess.
+    - `loss`: the objective (sum of squares of the residuals) at the solution.
+    - `steps`: the solver's number of steps.
+    - `result`: the `optimistix.RESULTS` code (``optimistix.RESULTS.successful`` or why
+      not).
+    - `window`: the two-pass window ``(N, M)`` used.
+    - `time_s`: wall time of the level, compilation included.
+    """
+
+    level: int
+    shape: tuple[int, int]
+    heights: np.ndarray
+    initial_loss: float
+    loss: float
+    steps: int
+    result: Any
+    window: tuple[int, int]
+    time_s: float
+
+
+@dataclasses.dataclass(frozen=True)
+class RecoveryResult:
+    """What `recover_surface` found.
+
+    - `heights`: the recovered height field, metres, ``heights_shape``, mean removed
+      (the mean is unobservable).
+    - `image`: the caustic rendered from the recovered surface (receiver shape).
+    - `target`: the target as compared (normalised if asked).
+    - `loss`: the final objective, the sum of squares of all residuals.
+    - `image_rmse`: root mean square of ``image - target``.
+    - `image_error`: ``||image - target|| / ||target - mean(target)||``, the misfit
+      relative to the target's contrast.
+    - `missed_flux_fraction`: per channel, light of the final surface that fell outside
+      the gather window (should be ~0).
+    - `levels`: a `RecoveryLevel` per coarse-to-fine level.
+    - `solver`: the solver's name.
+    - `time_s`: total wall time, compilation included.
+    - `scene`: the `WaterScene` with the recovered surface (as solved, mean included).
+    """
+
+    heights: np.ndarray
+    image: np.ndarray
+    target: np.ndarray
+    loss: float
+    image_rmse: float
+    image_error: float
+    missed_flux_fraction: np.ndarray
+    levels: tuple[RecoveryLevel, ...]
+    solver: str
+    time_s: float
+    scene: WaterScene
+
+    @property
+    def steps(self) -> tuple[int, ...]:
+        """Solver steps per level."""
+        return tuple(level.steps for level in self.levels)
+
+    @property
+    def results(self) -> tuple[Any, ...]:
+        """`optimistix.RESULTS` code per level."""
+        return tuple(level.result for level in self.levels)
+
+    @property
+    def success(self) -> bool:
+        """Whether every level ended with ``optimistix.RESULTS.successful``."""
+        return all(bool(r == optx.RESULTS.successful) for r in self.results)
+
+    @property
+    def messages(self) -> tuple[str, ...]:
+        """Human-readable result per level (empty string: successful)."""
+        return tuple(optx.RESULTS[r] for r in self.results)
+
+
+# ------------------------------------------------------------------ the problem
+
+
+def _laplacian(u: Array, boundary: str, wx: Array, wy: Array) -> Array:
+    if boundary == "periodic":
+        east, west = jnp.roll(u, -1, 1), jnp.roll(u, 1, 1)
+        north, south = jnp.roll(u, -1, 0), jnp.roll(u, 1, 0)
+    else:
+        p = jnp.pad(u, 1, mode="edge")
+        east, west = p[1:-1, 2:], p[1:-1, :-2]
+        north, south = p[2:, 1:-1], p[:-2, 1:-1]
+    return wx * (east + west - 2.0 * u) + wy * (north + south - 2.0 * u)
+
+
+class _Problem(eqx.Module):
+    """The residual function ``u -> (image misfit, smoothness, mean)`` of one level."""
+
+    target: Array
+    extent: Array
+    light: DirectionalLight
+    receiver: PlaneReceiver
+    rest_depth: Array
+    height_scale: Array
+    smooth: Array  # sqrt(smoothness)
+    lap_x: Array  # receiver pixel area / dx^2 of the height grid
+    lap_y: Array
+    ior: Any = eqx.field(static=True)
+    boundary: str = eqx.field(static=True)
+    samples_x: int = eqx.field(static=True)
+    channels_y: int = eqx.field(static=True)
+    hit_iterations: int = eqx.field(static=True)
+    supersample: int = eqx.field(static=True)
+
+    def scene(self, u: Array) -> WaterScene:
+        surface = HeightField(u * self.height_scale, self.extent, self.boundary)
+        return WaterScene(surface, self.light, self.receiver, self.rest_depth, ior=self.ior)
+
+    def render(self, u: Array) -> Any:
+        return two_pass(
+            self.scene(u),
+            samples_x=self.samples_x,
+            channels_y=self.channels_y,
+            hit_iterations=self.hit_iterations,
+            supersample=self.supersample,
+        )
+
+    def __call__(self, u: Array, args: Any = None) -> tuple[Array, Array, Array]:
+        del args
+        image = self.render(u).image
+        misfit = (image - self.target) / math.sqrt(self.target.size)
+        lap = _laplacian(u, self.boundary, self.lap_x, self.lap_y)
+        smooth = self.smooth * lap / math.sqrt(u.size)
+        return misfit, smooth, jnp.mean(u)[None]
+
+
+def _sum_squares(tree) -> Array:
+    return sum(jnp.sum(leaf * leaf) for leaf in jax.tree_util.tree_leaves(tree))
+
+
+@eqx.filter_jit
+def _loss(problem: _Problem, u: Array) -> Array:
+    return _sum_squares(problem(u))
+
+
+@eqx.filter_jit
+def _adam(problem: _Problem, u0: Array, learning_rate: float, max_steps: int, rtol, atol):
+    """Adam (beta1 0.9, beta2 0.999) on the sum of squares, stopping like Optimistix's
+    Cauchy criterion: a step and a change of the loss both below ``atol + rtol |.|``."""
+    value_and_grad = jax.value_and_grad(lambda u: _sum_squares(problem(u)))
+    b1, b2, eps = 0.9, 0.999, 1e-12
+
+    def cond(carry):
+        step, _, _, _, _, done = carry
+        return (step < max_steps) & ~done
+
+    def body(carry):
+        step, u, m, v, prev_loss, _ = carry
+        loss, g = value_and_grad(u)
+        m = b1 * m + (1 - b1) * g
+        v = b2 * v + (1 - b2) * g * g
+        t = step + 1
+        m_hat = m / (1 - b1**t)
+        v_hat = v / (1 - b2**t)
+        delta = learning_rate * m_hat / (jnp.sqrt(v_hat) + eps)
+        small_step = jnp.max(jnp.abs(delta)) <= atol + rtol * jnp.max(jnp.abs(u))
+        small_change = jnp.abs(prev_loss - loss) <= atol + rtol * loss
+        return t, u - delta, m, v, loss, small_step & small_change
+
+    zero = jnp.zeros_like(u0)
+    init = (jnp.array(0), u0, zero, zero, jnp.array(jnp.inf, u0.dtype), jnp.array(False))
+    steps, u, _, _, _, done = jax.lax.while_loop(cond, body, init)
+    result = optx.RESULTS.where(
+        done, optx.RESULTS.successful, optx.RESULTS.nonlinear_max_steps_reached
+    )
+    return u, steps, result
+
+
+def _make_solver(name: str, rtol: float, atol: float, cg_steps: int):
+    linear = lx.Normal(lx.CG(rtol=0.0, atol=0.0, max_steps=cg_steps))
+    if name == "levenberg_marquardt":
+        return optx.LevenbergMarquardt(rtol, atol, linear_solver=linear)
+    if name == "gauss_newton":
+        return optx.GaussNewton(rtol, atol, linear_solver=linear)
+    return optx.BFGS(rtol, atol)
+
+
+def _grid(extent: np.ndarray, shape: tuple[int, int], dtype) -> tuple[Array, Array]:
+    rows, cols = shape
+    x0, x1, y0, y1 = (float(v) for v in extent)
+    xs = x0 + (np.arange(cols) + 0.5) * (x1 - x0) / cols
+    ys = y0 + (np.arange(rows) + 0.5) * (y1 - y0) / rows
+    gx, gy = np.meshgrid(xs, ys)
+    return jnp.asarray(gx, dtype), jnp.asarray(gy, dtype)
+
+
+def resample_heights(heights, extent, shape: tuple[int, int], boundary: str = "periodic"):
+    """`heights` on a ``shape`` grid over the same `extent`, through the surface's own
+    bicubic interpolant (periodic or clamped): the coarse-to-fine upsampling."""
+    heights = jnp.asarray(heights)
+    if tuple(heights.shape) == tuple(shape):
+        return heights
+    surface = HeightField(heights, extent, boundary)
+    gx, gy = _grid(np.asarray(extent), shape, heights.dtype)
+    return height_and_gradient(surface, gx, gy)[0]
+
+
+# ------------------------------------------------------------------ validation
+
+
+def _load_target(target, ior) -> np.ndarray:
+    channels = len(ior) if isinstance(ior, tuple) else 0
+    if isinstance(target, (str, os.PathLike)):
+        arr = np.asarray(read_image(target, as_gray=channels == 0), dtype=float)
+        if channels and arr.ndim == 3 and arr.shape[2] == 4:
+            arr = arr[..., :3]
+    else:
+        try:
+            arr = np.asarray(target, dtype=float)
+        except (TypeError, ValueError) as err:
+            raise ValueError(f"`target` must be an array or an image path: {err}") from err
+    want = 3 if channels else 2
+    if arr.ndim != want or (channels and arr.shape[2] != channels):
+        what = f"(rows, cols, {channels})" if channels else "(rows, cols)"
+        raise ValueError(f"`target` must have shape {what} for ior={ior!r}, got {arr.shape}")
+    if arr.shape[0] < 2 or arr.shape[1] < 2:
+        raise ValueError(f"`target` needs at least 2x2 pixels, got shape {arr.shape}")
+    if not np.all(np.isfinite(arr)):
+        raise ValueError("`target` contains NaN or infinite values")
+    if np.any(arr < 0):
+        raise ValueError("`target` must be non-negative (an irradiance image)")
+    if not np.any(arr > 0):
+        raise ValueError("`target` is all zeros: there is no caustic to match")
+    return arr
+
+
+def _shape2(value, name: str) -> tuple[int, int]:
+    try:
+        shape = tuple(int(s) for s in value)
+    except (TypeError, ValueError) as err:
+        raise ValueError(f"`{name}` must be (rows, cols), got {value!r}") from err
+    if len(shape) != 2 or min(shape) < 2 or any(s != v for s, v in zip(shape, value, strict=True)):
+        raise ValueError(f"`{name}` must be two ints >= 2, got {value!r}")
+    return shape  # type: ignore[return-value]
+
+
+def _nonneg(value, name: str) -> float:
+    try:
+        v = float(value)
+    except (TypeError, ValueError) as err:
+        raise ValueError(f"`{name}` must be a number, got {value!r}") from err
+    if not (math.isfinite(v) and v >= 0):
+        raise ValueError(f"`{name}` must be finite and >= 0, got {value!r}")
+    return v
+
+
+def _pos_int(value, name: str) -> int:
+    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 1:
+        raise ValueError(f"`{name}` must be an int >= 1, got {value!r}")
+    return int(value)
+
+
+def _levels(coarse_to_fine, shape: tuple[int, int]) -> list[tuple[int, int]]:
+    try:
+        factors = [_pos_int(f, "coarse_to_fine") for f in coarse_to_fine]
+    except TypeError as err:
+        raise ValueError(
+            f"`coarse_to_fine` must be a sequence of ints, got {coarse_to_fine!r}"
+        ) from err
+    if (
+        not factors
+        or factors[-1] != 1
+        or any(a <= b for a, b in zip(factors, factors[1:], strict=False))
+    ):
+        raise ValueError(
+            f"`coarse_to_fine` must be strictly decreasing factors ending with 1, "
+            f"got {coarse_to_fine!r}"
+        )
+    shapes: list[tuple[int, int]] = []
+    for f in factors:
+        s = (max(2, -(-shape[0] // f)), max(2, -(-shape[1] // f)))
+        if not shapes or shapes[-1] != s:
+            shapes.append(s)
+    return shapes
+
+
+# ------------------------------------------------------------------ the solve
+
+
+def recover_surface(
+    target,
+    *,
+    extent,
+    rest_depth,
+    light: DirectionalLight,
+    ior: float | Sequence[float] = 1.333,
+    heights_shape: Sequence[int] | None = None,
+    receiver_extent=None,
+    boundary: str = "periodic",
+    solver: Solver = "levenberg_marquardt",
+    smoothness: float = 1e-3,
+    coarse_to_fine: Sequence[int] = (1,),
+    max_steps: int = 100,
+    rtol: float = 1e-6,
+    atol: float = 1e-9,
+    initial=None,
+    throw: bool = True,
+    samples_x: int | Literal["auto"] = "auto",
+    channels_y: int | None = None,
+    hit_iterations: int = 3,
+    supersample: int = 1,
+    normalize: bool | None = None,
+    cg_steps: int = 30,
+    learning_rate: float = 0.05,
+    callback: Callable[[RecoveryLevel], Any] | None = None,
+) -> RecoveryResult:
+    """Recover the water height field whose caustic is `target`.
+
+    **Arguments:**
+
+    - `target`: the caustic image: an array ``(rows, cols)`` (``(rows, cols, channels)``
+      when `ior` is a sequence) of irradiance relative to flat water, or the path of a
+      PNG, EXR, TIFF or JPEG file (read with `read_image`).
+    - `extent`: ``(x_min, x_max, y_min, y_max)`` of the height field, metres.
+    - `rest_depth`: depth of the flat water above the ground, metres (> 0).
+    - `light`: the `DirectionalLight`.
+    - `ior`: index of refraction (static), as in `WaterScene`; must not be 1.
+    - `heights_shape`: ``(rows, cols)`` of the height grid; default: the target's.
+    - `receiver_extent`: extent of the caustic map on the ground; default `extent`.
+    - `boundary`: the surface's boundary mode, ``"periodic"`` or ``"clamp"``.
+    - `solver`: ``"levenberg_marquardt"``, ``"gauss_newton"``, ``"bfgs"`` or ``"adam"``.
+    - `smoothness`: weight of the Laplacian prior (dimensionless, see the module).
+    - `coarse_to_fine`: strictly decreasing downsampling factors of the height grid,
+      ending with 1, e.g. ``(4, 2, 1)``; ``(1,)`` solves on the full grid only.
+    - `max_steps`: the most solver steps per level.
+    - `rtol`, `atol`: the solvers' tolerances (Optimistix's Cauchy criterion on the
+      scaled heights and on the residuals / loss).
+    - `initial`: initial heights, metres, any grid over `extent` (resampled to the first
+      level); default flat.
+    - `throw`: raise if a level fails (for example reaches `max_steps`); with False the
+      result carries the `optimistix.RESULTS` codes instead.
+    - `samples_x`, `channels_y`: the two-pass window ``(N, M)``; ``"auto"`` (see the
+      module); an int N with `channels_y` None uses ``M = N - 1``.
+    - `hit_iterations`, `supersample`: the two-pass knobs (see `two_pass`).
+    - `normalize`: scale the target so its mean is 1 (the mean irradiance of flat
+      water); default: True for a file path (whose scale is arbitrary), False for an
+      array.
+    - `cg_steps`: conjugate-gradient iterations per Gauss-Newton / Levenberg-Marquardt
+      step (a truncated, inexact Newton step).
+    - `learning_rate`: Adam's step in scaled height units (``"adam"`` only).
+    - `callback`: called with each level's `RecoveryLevel` when the level is done.
+
+    **Returns:** a `RecoveryResult`.
+
+    **Raises:** `ValueError`, naming the argument, for invalid inputs, before any
+    optimisation; with `throw`, Optimistix's runtime error (or `RuntimeError` for
+    Adam) when a level does not converge.
+    """
+    # ---- validate everything before compiling anything
+    ior = _check_ior(ior)
+    iors = ior if isinstance(ior, tuple) else (ior,)
+    if any(abs(1.0 - 1.0 / n) < 1e-6 for n in iors):
+        raise ValueError(f"`ior` must differ from 1 (no refraction, no caustic), got {ior!r}")
+    target_arr = _load_target(target, ior)
+    ext = np.asarray(_check_extent(extent, "extent"), dtype=float)
+    rec_ext = (
+        ext
+        if receiver_extent is None
+        else np.asarray(_check_extent(receiver_extent, "receiver_extent"), dtype=float)
+    )
+    depth = float(_check_positive_scalar(rest_depth, "rest_depth"))
+    if not isinstance(light, DirectionalLight):
+        raise ValueError(f"`light` must be a DirectionalLight, got {type(light).__name__}")
+    shape = _shape2(
+        target_arr.shape[:2] if heights_shape is None else heights_shape, "heights_shape"
+    )
+    if boundary not in BOUNDARY_MODES:
+        raise ValueError(f"`boundary` must be one of {BOUNDARY_MODES}, got {boundary!r}")
+    if solver not in SOLVERS:
+        raise ValueError(f"`solver` must be one of {SOLVERS}, got {solver!r}")
+    smoothness = _nonneg(smoothness, "smoothness")
+    level_shapes = _levels(coarse_to_fine, shape)
+    max_steps = _pos_int(max_steps, "max_steps")
+    rtol, atol = _nonneg(rtol, "rtol"), _nonneg(atol, "atol")
+    cg_steps = _pos_int(cg_steps, "cg_steps")
+    hit_iterations_ok = isinstance(hit_iterations, int) and hit_iterations >= 0
+    if isinstance(hit_iterations, bool) or not hit_iterations_ok:
+        raise ValueError(f"`hit_iterations` must be an int >= 0, got {hit_iterations!r}")
+    supersample = _pos_int(supersample, "supersample")
+    learning_rate = _nonneg(learning_rate, "learning_rate")
+    if learning_rate == 0:
+        raise ValueError("`learning_rate` must be positive")
+    if samples_x != "auto":
+        if (
+            isinstance(samples_x, bool)
+            or not isinstance(samples_x, int)
+            or samples_x < 1
+            or samples_x % 2 == 0
+        ):
+            raise ValueError(f"`samples_x` must be an odd int >= 1 or 'auto', got {samples_x!r}")
+        channels_y = samples_x - 1 if channels_y is None else channels_y
+        if (
+            isinstance(channels_y, bool)
+            or not isinstance(channels_y, int)
+            or channels_y < 0
+            or channels_y % 2
+        ):
+            raise ValueError(f"`channels_y` must be an even int >= 0, got {channels_y!r}")
+    elif channels_y is not None:
+        raise ValueError("`channels_y` is chosen with samples_x='auto'; pass both as ints")
+    if callback is not None and not callable(callback):
+        raise ValueError(f"`callback` must be callable or None, got {type(callback).__name__}")
+    dtype = jnp.result_type(float)
+    if initial is not None:
+        init_arr = np.asarray(initial, dtype=float)
+        if init_arr.ndim != 2 or min(init_arr.shape) < 2:
+            raise ValueError(
+                f"`initial` must be 2-D with at least 2x2 samples, got {init_arr.shape}"
+            )
+        if not np.all(np.isfinite(init_arr)):
+            raise ValueError("`initial` contains NaN or infinite values")
+    if normalize is None:
+        normalize = isinstance(target, (str, os.PathLike))
+    if normalize:
+        target_arr = target_arr / target_arr.mean()
+
+    start = time.perf_counter()
+    receiver = PlaneReceiver(jnp.asarray(rec_ext, dtype), target_arr.shape[:2])
+    pixel_area = float(
+        (rec_ext[1] - rec_ext[0])
+        * (rec_ext[3] - rec_ext[2])
+        / receiver.shape[0]
+        / receiver.shape[1]
+    )
+    height_scale = pixel_area / (depth * float(np.mean([abs(1.0 - 1.0 / n) for n in iors])))
+    light = DirectionalLight(jnp.asarray(light.direction, dtype))
+    target_j = jnp.asarray(target_arr, dtype)
+    if initial is None:
+        # Flat water plus a tiny deterministic ripple: at exactly flat water every
+        # two-pass sample sits on a kink of its splat kernel, where the renderer's
+        # derivative is degenerate (mostly zero) and the first steps go nowhere.
+        rng = np.random.default_rng(0)
+        u = jnp.asarray(INITIAL_RIPPLE * rng.standard_normal(level_shapes[0]), dtype)
+    else:
+        u = resample_heights(
+            jnp.asarray(init_arr, dtype) / height_scale, ext, level_shapes[0], boundary
+        )
+
+    levels: list[RecoveryLevel] = []
+    problem = None
+    for index, level_shape in enumerate(level_shapes):
+        t0 = time.perf_counter()
+        u = resample_heights(u, ext, level_shape, boundary)
+        hx = (ext[1] - ext[0]) / level_shape[1]
+        hy = (ext[3] - ext[2]) / level_shape[0]
+        if samples_x == "auto":
+            flat_scene = WaterScene(
+                HeightField(u * height_scale, jnp.asarray(ext, dtype), boundary),
+                light,
+                receiver,
+                jnp.asarray(depth, dtype),
+                ior=ior,
+            )
+            n, m = auto_window(flat_scene, hit_iterations, supersample)
+            window = (
+                max(n + 2 * WINDOW_MARGIN, MIN_WINDOW[0]),
+                max(m + 2 * WINDOW_MARGIN, MIN_WINDOW[1]),
+            )
+        else:
+            window = (samples_x, channels_y)
+        problem = _Problem(
+            target=target_j,
+            extent=jnp.asarray(ext, dtype),
+            light=light,
+            receiver=receiver,
+            rest_depth=jnp.asarray(depth, dtype),
+            height_scale=jnp.asarray(height_scale, dtype),
+            smooth=jnp.asarray(math.sqrt(smoothness), dtype),
+            lap_x=jnp.asarray(pixel_area / hx**2, dtype),
+            lap_y=jnp.asarray(pixel_area / hy**2, dtype),
+            ior=ior,
+            boundary=boundary,
+            samples_x=window[0],
+            channels_y=window[1],
+            hit_iterations=hit_iterations,
+            supersample=supersample,
+        )
+        initial_loss = float(_loss(problem, u))
+        if solver == "adam":
+            u, steps, result = _adam(problem, u, learning_rate, max_steps, rtol, atol)
+            steps = int(steps)
+            if throw and not bool(result == optx.RESULTS.successful):
+                raise RuntimeError(
+                    f"Adam did not converge in max_steps={max_steps} steps at level {index}"
+                    f" {level_shape}: {optx.RESULTS[result]} (pass throw=False to accept)"
+                )
+        else:
+            sol = optx.least_squares(
+                problem,
+                _make_solver(solver, rtol, atol, cg_steps),
+                u,
+                max_steps=max_steps,
+                throw=throw,
+            )
+            u, steps, result = sol.value, int(sol.stats["num_steps"]), sol.result
+        loss = float(_loss(problem, u))
+        level = RecoveryLevel(
+            level=index,
+            shape=level_shape,
+            heights=np.asarray(u * height_scale),
+            initial_loss=initial_loss,
+            loss=loss,
+            steps=steps,
+            result=result,
+            window=window,
+            time_s=time.perf_counter() - t0,
+        )
+        levels.append(level)
+        if callback is not None:
+            callback(level)
+
+    assert problem is not None
+    rendered = problem.render(u)
+    image = np.asarray(rendered.image)
+    heights = np.asarray(u * height_scale)
+    misfit = image - target_arr
+    contrast = np.linalg.norm(target_arr - target_arr.mean())
+    return RecoveryResult(
+        heights=heights - heights.mean(),
+        image=image,
+        target=target_arr,
+        loss=levels[-1].loss,
+        image_rmse=float(np.sqrt(np.mean(misfit**2))),
+        image_error=float(np.linalg.norm(misfit) / max(contrast, 1e-300)),
+        missed_flux_fraction=np.asarray(rendered.missed_flux_fraction),
+        levels=tuple(levels),
+        solver=solver,
+        time_s=time.perf_counter() - start,
+        scene=problem.scene(u),
+    )
+
+
+# ------------------------------------------------------------------ solver comparison
+
+
+def compare_solvers(
+    true_heights,
+    *,
+    extent,
+    rest_depth,
+    light: DirectionalLight,
+    image_shape: Sequence[int],
+    ior: float = 1.333,
+    solvers: Sequence[str] = SOLVERS,
+    solver_options: dict[str, dict[str, Any]] | None = None,
+    **options: Any,
+) -> list[dict[str, Any]]:
+    """Recover `true_heights` from its own caustic with each solver, twice.
+
+    The target is the two-pass caustic (``image_shape`` pixels, window ``"auto"``, the
+    same `hit_iterations` / `supersample` as the solve) of `true_heights` over
+    `extent`; `options` go to `recover_surface` (``heights_shape`` defaults to the
+    shape of `true_heights`) and ``solver_options[name]`` overrides them per solver.
+    Each solver runs twice with the same arguments: the first time includes
+    compilation, the second reuses it.
+
+    **Returns:** a row per solver: ``solver``, ``height_error`` (relative L2 error of
+    the heights, means removed), ``image_error`` (`RecoveryResult.image_error`),
+    ``loss``, ``steps`` (total over levels), ``success``, ``time_first_s`` (compile
+    included), ``time_s`` (compiled) and ``compile_s`` (their difference). See
+    `format_comparison` for a Markdown table.
+    """
+    true_heights = np.asarray(true_heights, dtype=float)
+    options.setdefault("heights_shape", true_heights.shape)
+    scene = WaterScene(
+        HeightField(true_heights, extent, options.get("boundary", "periodic")),
+        light,
+        PlaneReceiver(options.get("receiver_extent", extent), image_shape),
+        rest_depth,
+        ior=ior,
+    )
+    target = np.asarray(
+        two_pass(
+            scene,
+            samples_x="auto",
+            channels_y="auto",
+            hit_iterations=options.get("hit_iterations", 3),
+            supersample=options.get("supersample", 1),
+        ).image
+    )
+    truth = np.asarray(
+        resample_heights(
+            true_heights,
+            extent,
+            tuple(options["heights_shape"]),
+            options.get("boundary", "periodic"),
+        )
+    )
+    truth = truth - truth.mean()
+    rows = []
+    for name in solvers:
+        kwargs = {**options, **(solver_options or {}).get(name, {})}
+        times = []
+        for _ in range(2):
+            t0 = time.perf_counter()
+            result = recover_surface(
+                target,
+                extent=extent,
+                rest_depth=rest_depth,
+                light=light,
+                ior=ior,
+                solver=name,
+                **kwargs,
+            )
+            times.append(time.perf_counter() - t0)
+        rows.append(
+            {
+                "solver": name,
+                "height_error": float(
+                    np.linalg.norm(result.heights - truth) / np.linalg.norm(truth)
+                ),
+                "image_error": result.image_error,
+                "loss": result.loss,
+                "steps": sum(result.steps),
+                "success": result.success,
+                "time_first_s": times[0],
+                "time_s": times[1],
+                "compile_s": times[0] - times[1],
+            }
+        )
+    return rows
+
+
+def format_comparison(rows: Sequence[dict[str, Any]]) -> str:
+    """The rows of `compare_solvers` as a Markdown table."""
+    lines = [
+        "| solver | height error | image error | loss | steps | converged | time (s) |"
+        " time incl. compile (s) |",
+        "|---|---|---|---|---|---|---|---|",
+    ]
+    for r in rows:
+        lines.append(
+            f"| {r['solver']} | {r['height_error']:.2e} | {r['image_error']:.2e} |"
+            f" {r['loss']:.2e} | {r['steps']} | {'yes' if r['success'] else 'no'} |"
+            f" {r['time_s']:.2f} | {r['time_first_s']:.1f} |"
+        )
+    return "\n".join(lines)
