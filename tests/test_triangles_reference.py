@@ -127,8 +127,8 @@ def _point_lit_lens():
 @pytest.mark.parametrize(
     "make, photons_ref, tolerance, flux_tolerance",
     [
-        (_occluded, 1024, 0.03, 0.025),
-        # two more mesh cases (about 11 s each): run on request (`-m slow`)
+        pytest.param(_occluded, 1024, 0.03, 0.025, marks=pytest.mark.slow),
+        # the mesh cases take about 11 s each: run on request (`-m slow`)
         pytest.param(
             lambda: sphere_scene(
                 shape=(64, 64),

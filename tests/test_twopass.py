@@ -148,6 +148,7 @@ def test_rotated_heightfield_agrees_with_reference(surface, tolerance, boundary)
 STRONG = dict(extent=(0.0, 1.0, 0.0, 1.0), sigma=0.1, shape=(64, 64))
 
 
+@pytest.mark.slow  # 16 s: compiles seven window sizes
 def test_error_falls_as_the_window_grows():
     """A bump focusing 1.1 m below a 3 m deep surface displaces rays by up to ~9 pixels.
 
@@ -171,6 +172,7 @@ def test_error_falls_as_the_window_grows():
     assert all(abs(e - m) < 0.01 for e, m in zip(errors[:-1], missed[:-1], strict=False))
 
 
+@pytest.mark.slow  # 13 s: a large window compiles slowly
 def test_auto_window_catches_light_displaced_16_pixels():
     """Focus about 1 m above the ground of a 4 m pool: rays move ~16 pixels.
 

@@ -43,6 +43,7 @@ def test_the_exported_solid_renders_like_the_height_field():
     assert relative_l2(reference.trace_mesh(solid, 512), lens_image) < 0.04
 
 
+@pytest.mark.slow  # 10 s: nine reference renders of a faceted solid
 def test_verification_reports_robustness():
     scene = bumpy_lens()
     target = reference.trace_lens(scene, 512)  # a design that meets its target
