@@ -114,8 +114,12 @@ def prepass(
 
 
 def _tent_slope(u: Array) -> Array:
-    """Derivative of `_tent` (0 at the kinks' far side and at ``u = 0``)."""
-    return jnp.where(jnp.abs(u) < 1.0, -jnp.sign(u), 0.0)
+    """Derivative of `_tent`; at its kinks (``u = -1, 0, 1``) the derivative from the
+    right, the same for every sample, so that at flat water (every shift a whole number
+    of pixels) the light one pixel loses another gains and the gradient is the
+    directional derivative for increasing shifts (a symmetric choice, 0 at ``u = 0``
+    and at ``|u| = 1``, gave a zero gradient there)."""
+    return jnp.where((u >= 0.0) & (u < 1.0), -1.0, jnp.where((u >= -1.0) & (u < 0.0), 1.0, 0.0))
 
 
 def _pass1(shift_x: Array, shift_y: Array, flux: Array, half_x: int, half_y: int) -> Array:
