@@ -22,7 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ._cli_design import add_design
+from ._cli_inverse import add_design, add_recover
 
 # Above this missed-flux fraction the image is visibly too dark: warn.
 MISSED_FLUX_WARNING = 0.01
@@ -467,7 +467,11 @@ def _render_water(args: argparse.Namespace) -> int:
 # --------------------------------------------------------------------------- main
 
 # Each entry adds one top-level subcommand to the subparsers it is given.
-_COMMANDS: list[Callable[[argparse._SubParsersAction], None]] = [_add_render, add_design]
+_COMMANDS: list[Callable[[argparse._SubParsersAction], None]] = [
+    _add_render,
+    add_design,
+    add_recover,
+]
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -165,7 +165,7 @@ def verify_lens(
                 ior=scene.ior,
                 fresnel=scene.fresnel,
                 interfaces=2,
-        normals="flat",
+                normals="flat",
             )
             images.append(reference.trace_mesh(lit, per_axis))
         sun_error = relative_l2(np.mean(images, axis=0), target, mask)

@@ -209,3 +209,151 @@ def _loss_plot(losses: list[float], path: Path) -> None:
     fig.tight_layout()
     fig.savefig(path, dpi=80)
     plt.close(fig)
+
+
+def _pair(text: str) -> tuple[float, float]:
+    try:
+        a, b = (float(v) for v in text.split(","))
+    except ValueError as err:
+        raise argparse.ArgumentTypeError(f"expected two numbers A,B, got {text!r}") from err
+    return a, b
+
+
+def add_recover(subparsers) -> None:
+    recover = subparsers.add_parser(
+        "recover",
+        help="recover a water surface from a photograph of its caustic",
+        description=(
+            "Recover the water height field whose caustic on the pool floor is TARGET (a "
+            "PNG or EXR, scaled so that its mean is flat water's irradiance). Without "
+            "TARGET, a caustic is rendered from a built-in sea and recovered, and the "
+            "recovered heights are compared with the true ones. Checkpoints after every "
+            "coarse-to-fine level (--resume continues; Ctrl-C keeps the last one)."
+        ),
+    )
+    recover.add_argument("target", nargs="?", default=None, metavar="TARGET")
+    recover.add_argument("--size", default="1,1", type=_pair, help="floor area W,H in metres")
+    recover.add_argument("--depth", type=float, default=0.5, help="rest depth, metres (0.5)")
+    recover.add_argument("--zenith", type=float, default=20.0, help="light zenith, degrees")
+    recover.add_argument("--azimuth", type=float, default=0.0, help="light azimuth, degrees")
+    recover.add_argument("--ior", type=float, default=1.333, help="water's index (1.333)")
+    recover.add_argument("--heights", type=int, default=32, help="height samples per axis (32)")
+    recover.add_argument("--levels", default="4,2,1", help="coarse-to-fine factors (4,2,1)")
+    recover.add_argument(
+        "--solver",
+        default="levenberg_marquardt",
+        choices=("levenberg_marquardt", "gauss_newton", "bfgs", "adam"),
+    )
+    recover.add_argument("--steps", type=int, default=50, help="solver steps per level (50)")
+    recover.add_argument("--output", type=Path, default=Path("recover"), help="output folder")
+    recover.add_argument("--resume", action="store_true", help="continue from the checkpoint")
+    recover.set_defaults(func=run_recover)
+
+
+def run_recover(args: argparse.Namespace) -> int:
+    import jax.numpy as jnp
+
+    from . import DirectionalLight, HeightField, PlaneReceiver, WaterScene, two_pass, write_exr
+    from ._inverse.checkpoint import run_rounds
+    from ._inverse.recover import recover_surface, resample_heights
+    from ._io import read_image, write_png
+    from ._waves import wave_heights
+
+    try:
+        factors = [int(v) for v in args.levels.split(",")]
+    except ValueError as err:
+        raise ValueError(f"`--levels` must be integers such as 4,2,1, got {args.levels!r}") from err
+    if factors[-1] != 1 or any(a <= b for a, b in zip(factors, factors[1:], strict=False)):
+        raise ValueError(f"`--levels` must decrease strictly to 1, got {args.levels!r}")
+    extent = (0.0, args.size[0], 0.0, args.size[1])
+    light = DirectionalLight.from_angles(args.zenith, args.azimuth)
+    shape = (args.heights, args.heights)
+    truth = None
+    if args.target is None:  # a built-in sea: render its caustic, then recover it
+        truth = np.asarray(
+            wave_heights(
+                shape,
+                extent,
+                amplitude=0.002,
+                depth=args.depth,
+                wavelength_range=(0.3, 1.0),
+                num_waves=8,
+                seed=3,
+            )
+        )
+        scene = WaterScene(
+            HeightField(truth, extent),
+            light,
+            PlaneReceiver(extent, (2 * shape[0], 2 * shape[1])),
+            args.depth,
+            ior=args.ior,
+        )
+        target = np.asarray(two_pass(scene, samples_x="auto", channels_y="auto").image)
+    else:
+        target = np.asarray(read_image(args.target), float)
+        if target.ndim == 3:
+            target = target[..., :3].mean(axis=-1)
+        target = target / target.mean()
+    out = args.output
+    out.mkdir(parents=True, exist_ok=True)
+    common = dict(
+        extent=extent,
+        rest_depth=args.depth,
+        light=light,
+        ior=args.ior,
+        solver=args.solver,
+        max_steps=args.steps,
+        throw=False,
+    )
+    results: dict[int, object] = {}
+
+    def level_round(k: int):
+        def run(state):
+            level_shape = tuple(max(4, s // factors[k]) for s in shape)
+            result = recover_surface(
+                target,
+                heights_shape=level_shape,
+                initial=None if k == 0 else np.asarray(state["heights"]),
+                **common,
+            )
+            results[k] = result
+            fine = resample_heights(result.heights, extent, shape)
+            return {"heights": jnp.asarray(fine), "loss": jnp.asarray(result.loss)}
+
+        return run
+
+    start = time.perf_counter()
+    state, done, interrupted = run_rounds(
+        [level_round(k) for k in range(len(factors))],
+        {"heights": jnp.zeros(shape), "loss": jnp.asarray(np.inf)},
+        checkpoint=out / "recover.ckpt.npz",
+        resume=args.resume,
+        describe=lambda s: f"loss {float(s['loss']):.3g}",
+        label="recover",
+    )
+    if interrupted:
+        print(f"interrupted after {done} of {len(factors)} levels; rerun with --resume")
+        return 130
+    if len(factors) - 1 not in results:
+        print(f"{out / 'recover.ckpt.npz'} holds a finished recovery; its outputs are in {out}/")
+        return 0
+    result = results[len(factors) - 1]
+    heights = np.asarray(result.heights)
+    write_exr(out / "heights.exr", heights)
+    write_png(out / "recovered_caustic.png", result.image)
+    write_png(out / "target.png", target)
+    summary = {
+        "seconds": time.perf_counter() - start,
+        "loss": float(result.loss),
+        "image_error": float(result.image_error),
+        "solver": args.solver,
+        "levels": factors,
+    }
+    if truth is not None:
+        t = truth - truth.mean()
+        summary["height_error"] = float(np.linalg.norm(heights - t) / np.linalg.norm(t))
+    (out / "summary.json").write_text(json.dumps(summary, indent=2))
+    for key, value in summary.items():
+        print(f"{key}: {value}")
+    print(f"wrote {out}/ (heights.exr, recovered_caustic.png, target.png, summary.json)")
+    return 0
