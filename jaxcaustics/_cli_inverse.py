@@ -107,11 +107,33 @@ def _levels(text: str) -> list[int]:
     return levels
 
 
+def _run_levels(rounds, shape, out: Path, label: str, resume: bool) -> int | None:
+    """Run the coarse-to-fine rounds (state: heights on the final grid and the loss) with
+    a checkpoint in `out`; returns an exit code when the command should stop (Ctrl-C,
+    or a checkpoint of a finished run), else None."""
+    import jax.numpy as jnp
+
+    from ._inverse.checkpoint import run_rounds
+
+    checkpoint = out / f"{label}.ckpt.npz"
+    _, done, interrupted = run_rounds(
+        rounds,
+        {"heights": jnp.zeros(shape), "loss": jnp.asarray(np.inf)},
+        checkpoint=checkpoint,
+        resume=resume,
+        describe=lambda s: f"loss {float(s['loss']):.4g}",
+        label=label,
+    )
+    if interrupted:
+        print(f"interrupted after {done} of {len(rounds)} levels; rerun with --resume")
+        return 130
+    return None
+
+
 def run_design(args: argparse.Namespace) -> int:
     import jax.numpy as jnp
 
     from ._export import export_lens
-    from ._inverse.checkpoint import run_rounds
     from ._inverse.design import _resample_heights, design_lens
     from ._io import write_png
 
@@ -146,21 +168,11 @@ def run_design(args: argparse.Namespace) -> int:
         return run
 
     start = time.perf_counter()
-    state0 = {"heights": jnp.zeros(final_shape), "loss": jnp.asarray(np.inf)}
-    state, done, interrupted = run_rounds(
-        [level_round(k) for k in range(len(levels))],
-        state0,
-        checkpoint=out / "design.ckpt.npz",
-        resume=args.resume,
-        describe=lambda s: f"loss {float(s['loss']):.4g}",
-        label="design",
+    code = _run_levels(
+        [level_round(k) for k in range(len(levels))], final_shape, out, "design", args.resume
     )
-    if interrupted:
-        print(f"interrupted after {done} of {len(levels)} levels; rerun with --resume")
-        return 130
-    if len(levels) - 1 not in designs:  # the checkpoint holds a finished run
-        print(f"{out / 'design.ckpt.npz'} holds a finished design; its outputs are in {out}/")
-        return 0
+    if code is not None or len(levels) - 1 not in designs:
+        return code or 0
     design = designs[len(levels) - 1]
     seconds = time.perf_counter() - start
 
@@ -254,7 +266,6 @@ def run_recover(args: argparse.Namespace) -> int:
     import jax.numpy as jnp
 
     from . import DirectionalLight, HeightField, PlaneReceiver, WaterScene, two_pass, write_exr
-    from ._inverse.checkpoint import run_rounds
     from ._inverse.recover import recover_surface, resample_heights
     from ._io import read_image, write_png
     from ._waves import wave_heights
@@ -323,20 +334,11 @@ def run_recover(args: argparse.Namespace) -> int:
         return run
 
     start = time.perf_counter()
-    state, done, interrupted = run_rounds(
-        [level_round(k) for k in range(len(factors))],
-        {"heights": jnp.zeros(shape), "loss": jnp.asarray(np.inf)},
-        checkpoint=out / "recover.ckpt.npz",
-        resume=args.resume,
-        describe=lambda s: f"loss {float(s['loss']):.3g}",
-        label="recover",
+    code = _run_levels(
+        [level_round(k) for k in range(len(factors))], shape, out, "recover", args.resume
     )
-    if interrupted:
-        print(f"interrupted after {done} of {len(factors)} levels; rerun with --resume")
-        return 130
-    if len(factors) - 1 not in results:
-        print(f"{out / 'recover.ckpt.npz'} holds a finished recovery; its outputs are in {out}/")
-        return 0
+    if code is not None or len(factors) - 1 not in results:
+        return code or 0
     result = results[len(factors) - 1]
     heights = np.asarray(result.heights)
     write_exr(out / "heights.exr", heights)
