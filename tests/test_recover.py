@@ -100,6 +100,7 @@ def small_case():
 SMALL = dict(heights_shape=(8, 8), hit_iterations=1, max_steps=3)
 
 
+@pytest.mark.slow  # about 20 s of compilation for the four solvers; LM runs by default above
 @pytest.mark.parametrize("solver", SOLVERS)
 def test_each_solver_runs_and_reduces_the_loss(small_case, solver):
     """8 x 8 heights, 16 x 16 pixels, 3 steps. Measured loss ratios after 3 steps:
