@@ -10,7 +10,7 @@ EXAMPLES = sorted((Path(__file__).parent.parent / "examples").glob("*.py"))
 
 
 # examples that take more than about 15 s run on request (`-m slow`)
-SLOW = {"glass_caustics"}
+SLOW = {"glass_caustics", "recover_water"}
 CASES = [
     pytest.param(p, id=p.stem, marks=[pytest.mark.slow] if p.stem in SLOW else []) for p in EXAMPLES
 ]
