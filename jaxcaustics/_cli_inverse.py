@@ -134,7 +134,7 @@ def run_design(args: argparse.Namespace) -> int:
     import jax.numpy as jnp
 
     from ._export import export_lens
-    from ._inverse.design import _resample_heights, design_lens
+    from ._inverse.design import _resample, design_lens
     from ._io import write_png
 
     levels = _levels(args.levels)
@@ -162,7 +162,7 @@ def run_design(args: argparse.Namespace) -> int:
                 **spec,
             )
             designs[k] = design
-            fine = _resample_heights(np.asarray(design.heights), final_shape)
+            fine = _resample(np.asarray(design.heights), final_shape)
             return {"heights": jnp.asarray(fine), "loss": jnp.asarray(design.loss_history[-1])}
 
         return run

@@ -43,7 +43,8 @@ import optimistix as optx
 from .._optics import refract_components
 from .._photons import _grid, lens_photons
 from .._scene import DirectionalLight, HeightField, LensScene, PlaneReceiver, PointLight
-from .._surface import ray_surface_hit
+from .._surface import _catmull_rom, ray_surface_hit
+from .recover import resample_heights
 
 METHODS = ("transport", "least_squares")
 SOLVERS = ("levenberg_marquardt", "gauss_newton")
@@ -298,19 +299,7 @@ def _catmull_rom_matrix(n: int, lo: float, hi: float, points: np.ndarray):
     u = np.clip((points - lo) / step - 0.5, -2.0, n + 1.0)
     base = np.floor(u)
     t = u - base
-    t2, t3 = t * t, t * t * t
-    w = [
-        0.5 * (-t3 + 2 * t2 - t),
-        0.5 * (3 * t3 - 5 * t2 + 2),
-        0.5 * (-3 * t3 + 4 * t2 + t),
-        0.5 * (t3 - t2),
-    ]
-    dw = [
-        0.5 * (-3 * t2 + 4 * t - 1),
-        0.5 * (9 * t2 - 10 * t),
-        0.5 * (-9 * t2 + 8 * t + 1),
-        0.5 * (3 * t2 - 2 * t),
-    ]
+    w, dw, _ = _catmull_rom(t)  # the library's own Catmull-Rom weights
     weights = np.zeros((points.size, n))
     deriv = np.zeros((points.size, n))
     rows = np.arange(points.size)
@@ -352,16 +341,9 @@ def _laplacian(h: jax.Array, dx: float, dy: float) -> jax.Array:
     ) / dy**2
 
 
-def _resample_heights(h: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
-    """The bicubic surface of `h` sampled at the sample centres of a `shape` grid."""
-    from .._surface import height_and_gradient
-
-    field = HeightField(h, np.array([0.0, 1.0, 0.0, 1.0]), "clamp")
-    rows, cols = shape
-    x = (np.arange(cols) + 0.5) / cols
-    y = (np.arange(rows) + 0.5) / rows
-    xx, yy = np.meshgrid(x, y)
-    return np.asarray(height_and_gradient(field, jnp.asarray(xx), jnp.asarray(yy))[0])
+def _resample(h: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
+    """The clamped bicubic surface of `h` at the sample centres of a `shape` grid."""
+    return np.asarray(resample_heights(h, (0.0, 1.0, 0.0, 1.0), shape, "clamp"))
 
 
 def _transport_residual(u, problem: _Problem):
@@ -628,13 +610,13 @@ def design_lens(
         rows, cols = shape
         dx, dy = width / cols, height / rows
         if k == 0 and initial is not None:  # continue from given heights
-            h_start = _resample_heights(np.asarray(initial, float), shape)
+            h_start = _resample(np.asarray(initial, float), shape)
             u = _laplacian(jnp.asarray(h_start), dx, dy) * weak
         elif k == 0:
             u = jnp.asarray(-np.log(goal0), dtype)
         else:
             # carry the heights to the finer grid, then back to the preconditioned variable
-            h_fine = _resample_heights(h, shape)
+            h_fine = _resample(h, shape)
             u = _laplacian(jnp.asarray(h_fine), dx, dy) * weak
         scene = LensScene(
             HeightField(np.zeros(shape), aperture, "clamp"),
