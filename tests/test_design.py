@@ -53,7 +53,7 @@ def no_optimisation(monkeypatch):
         (dict(width=0.0), "width"),
         (dict(height=float("nan")), "height"),
         (dict(ior=1.0), "ior"),
-        (dict(method="adam"), "method"),
+        (dict(regularization=-1.0), "regularization"),
         (dict(levels=()), "levels"),
         (dict(mask=np.ones((8, 8), bool)), "mask"),
         (dict(mask=np.zeros((16, 16), bool)), "mask"),

@@ -1,23 +1,20 @@
 """Caustic lens design: from a target image to the height field of a lens (`design_lens`).
 
 The forward model is the lens scene (`LensScene`: screen ``z = 0``, flat bottom face at
-``z = throw``, top surface ``z = throw + thickness + H(x, y)``). Two methods:
+``z = throw``, top surface ``z = throw + thickness + H(x, y)``).
 
-- ``"transport"`` (default): the light transport equation on the lens plane. A photon
-  grid over the aperture is traced exactly (`lens_photons`, the forward model of the
-  caustic triangles); each cell of the grid lands on a quadrilateral of the screen whose
-  area times the target irradiance at its centroid must equal the flux the cell carries:
-  ``r = log E(centroid) + log A_landed - log flux = 0`` per cell, plus the second
-  boundary condition (the aperture's edge lands on the screen's edge). The system is
-  solved as a nonlinear least-squares problem by Optimistix (Levenberg-Marquardt or
-  Gauss-Newton) with matrix-free Lineax normal conjugate gradients (JVPs and VJPs of the
-  residual), right-preconditioned by the inverse of the weak-lens Laplacian
-  (``h = P u``, ``P = ((n - 1) D Laplacian)^-1`` by a DCT Poisson solve with Neumann
-  boundaries), started from the weak-lens Poisson solution and run coarse to fine.
-- ``"least_squares"``: fit the caustic-triangles image itself (exact reconstruction) to
-  the target, both scaled to unit mean over the mask, with a small smoothness prior,
-  by the same solver and preconditioner; started from the transport design of the
-  coarsest level.
+The method: the light transport equation on the lens plane. A photon grid over the
+aperture is traced exactly (the physics of `lens_photons`, the forward model of the
+caustic triangles); each cell of the grid lands on a quadrilateral of the screen whose
+area times the target irradiance at its centroid must equal the flux the cell carries:
+``r = log E(centroid) + log A_landed - log flux = 0`` per cell, plus the second boundary
+condition (the aperture's edge lands on the screen's edge) and a weak curvature prior.
+The system is solved as a nonlinear least-squares problem by Optimistix
+(Levenberg-Marquardt or Gauss-Newton) with matrix-free Lineax normal conjugate gradients
+(JVPs and VJPs of the residual), right-preconditioned by the inverse of the weak-lens
+Laplacian (``h = P u``, ``P = ((n - 1) D Laplacian)^-1`` by a DCT Poisson solve with
+Neumann boundaries), started from (half) the weak-lens Poisson solution and run coarse to
+fine, each level against the target averaged to its grid (`_level_target`).
 
 Weak-lens relation (collimated light along ``-z``): a photon through the aperture point
 ``p`` lands near ``p + D grad H(p)`` with ``D = (n - 1) (throw + thickness / n)``; the
@@ -46,7 +43,6 @@ from .._scene import DirectionalLight, HeightField, LensScene, PlaneReceiver, Po
 from .._surface import _catmull_rom, ray_surface_hit
 from .recover import resample_heights
 
-METHODS = ("transport", "least_squares")
 SOLVERS = ("levenberg_marquardt", "gauss_newton")
 
 
@@ -69,7 +65,6 @@ class LensDesign:
       seconds (compilation included) and seconds of the first call (compilation).
     - `result`: the Optimistix result of the last level (``optx.RESULTS``).
     - `timings`: ``{"total": s, "initial_guess": s, "predict": s}``.
-    - `method`: the method used.
     """
 
     heights: np.ndarray
@@ -80,7 +75,6 @@ class LensDesign:
     levels: list[dict[str, Any]]
     result: Any
     timings: dict[str, float]
-    method: str
 
     @property
     def relief(self) -> float:
@@ -206,6 +200,7 @@ class _Problem(eqx.Module):
     weak: float = eqx.field(static=True)  # D of the weak-lens relation
     grid: tuple[int, int] = eqx.field(static=True)  # photon grid (vertices)
     boundary_weight: float = eqx.field(static=True)
+    regularization: float = eqx.field(static=True)
     hit_iterations: int = eqx.field(static=True)
     sampling: tuple | None  # separable bicubic weights at the photon grid (vertical light)
     dx: float = eqx.field(static=True)
@@ -214,11 +209,6 @@ class _Problem(eqx.Module):
     def heights(self, u: jax.Array) -> jax.Array:
         """Right preconditioner: ``h = (D Laplacian)^-1 u`` (zero mean)."""
         return _neumann_poisson(u, self.dx, self.dy) / self.weak
-
-    def photons(self, h: jax.Array):
-        h = h - jax.lax.stop_gradient(jnp.max(h))  # the blank's top is the rest plane
-        scene = eqx.tree_at(lambda s: s.surface.heights, self.scene, h)
-        return lens_photons(scene, self.grid)
 
     def landing(self, h: jax.Array):
         """Where the photons of the grid land, ``(x, y)``, and their flux density: the
@@ -288,7 +278,10 @@ class _Problem(eqx.Module):
                 (y[-1, :] - sy1) / pdy,
             ]
         )
-        return interior, w * edges
+        # a weak prior on the curvature of u (the weak-lens irradiance change): without it
+        # the coarse levels drift into modes that fold between the photon vertices
+        prior = self.regularization * self.dx * self.dy * _laplacian(u, self.dx, self.dy)
+        return interior, w * edges, prior
 
 
 def _catmull_rom_matrix(n: int, lo: float, hi: float, points: np.ndarray):
@@ -317,6 +310,33 @@ def _sampling(shape, aperture, grid):
     wx, dwx = _catmull_rom_matrix(cols, x0, x1, np.linspace(x0, x1, pcol))
     wy, dwy = _catmull_rom_matrix(rows, y0, y1, np.linspace(y0, y1, prow))
     return tuple(jnp.asarray(a) for a in (wy, dwy, wx, dwx))
+
+
+def default_levels(shape: Sequence[int]) -> tuple[int, ...]:
+    """Coarse-to-fine heights grids for a target of `shape`: powers of two from 32 up to
+    twice its longer side (at least one level)."""
+    top = 2 * max(int(s) for s in shape)
+    levels = [32]
+    while levels[-1] * 2 <= top:
+        levels.append(levels[-1] * 2)
+    return tuple(levels)
+
+
+def _level_target(goal: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
+    """The target a level with `shape` heights (and as many photon cells) is solved for.
+
+    Coarser than the target: its area average on the level's grid (a coarse level
+    cannot follow finer detail, and point samples of it would be inconsistent). Twice
+    as fine or finer: each pixel split into 2 x 2 equal sub-pixels, so that the bilinear
+    lookup at the cells' centroids blurs over half a pixel instead of a whole one (the
+    pixel average of a bilinear interpolant is the image blurred by (1/8, 3/4, 1/8);
+    of the split image, by (1/16, 7/8, 1/16))."""
+    rows, cols = shape
+    if rows < goal.shape[0] or cols < goal.shape[1]:
+        return _area_average(goal, (min(rows, goal.shape[0]), min(cols, goal.shape[1])))
+    if rows >= 2 * goal.shape[0] and cols >= 2 * goal.shape[1]:
+        return np.kron(goal, np.ones((2, 2)))
+    return goal
 
 
 def _vertical(light: DirectionalLight) -> bool:
@@ -348,26 +368,6 @@ def _resample(h: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
 
 def _transport_residual(u, problem: _Problem):
     return problem.transport_residual(u)
-
-
-def _image_residual(u, args):
-    """Residual of the image fit: the caustic-triangles image and the target, both at unit
-    mean over the mask, plus a smoothness prior on the heights (slopes over the weak-lens
-    scale)."""
-    from .._methods.triangles import triangles_image
-
-    problem, m, goal, smooth, window = args
-    tgt = jnp.where(m, goal, 0.0)
-    tgt = tgt / (jnp.sum(tgt) / jnp.sum(m))
-    h = problem.heights(u)
-    ph = problem.photons(h)
-    img, _ = triangles_image(ph, problem.scene.receiver, reconstruction="exact", window=window)
-    img = img[0]
-    img = img / (jnp.sum(jnp.where(m, img, 0.0)) / jnp.sum(m))
-    gx = jnp.diff(h, axis=1) / problem.dx
-    gy = jnp.diff(h, axis=0) / problem.dy
-    scale = smooth * problem.weak / problem.dx
-    return img - tgt, (scale * gx, scale * gy)
 
 
 # --------------------------------------------------------------------------- solver loop
@@ -446,17 +446,16 @@ def design_lens(
     mask=None,
     heights_shape: tuple[int, int] | None = None,
     screen_extent: Sequence[float] | None = None,
-    method: Literal["transport", "least_squares"] = "transport",
-    levels: Sequence[int] = (32, 64, 128),
-    max_steps: int = 12,
+    levels: Sequence[int] | None = None,
+    max_steps: int = 40,
     solver: Literal["levenberg_marquardt", "gauss_newton"] = "levenberg_marquardt",
     oversample: int = 1,
     floor: float = 0.02,
     boundary_weight: float = 1.0,
+    regularization: float = 0.01,
+    start_scale: float = 0.5,
     cg_steps: int = 30,
     rtol: float = 1e-4,
-    smooth: float = 1e-3,
-    window: int = 8,
     predict_photons: int | None = None,
     throw_errors: bool = True,
     callback: Callable[[dict], None] | None = None,
@@ -481,17 +480,21 @@ def design_lens(
       side of the aperture, the other side in proportion.
     - `screen_extent`: ``(x_min, x_max, y_min, y_max)`` of the screen; default: the
       flat lens's footprint (the aperture traced to the screen).
-    - `method`: ``"transport"`` or ``"least_squares"`` (see the module docstring).
-    - `levels`: heights samples along the longer side, coarse to fine.
+    - `levels`: heights samples along the longer side, coarse to fine; default: powers
+      of two from 32 up to twice the target's longer side (heights finer than the
+      pixels: a photon cell per half pixel).
     - `max_steps`: solver steps per level.
     - `solver`: ``"levenberg_marquardt"`` or ``"gauss_newton"`` (both with Lineax
       `NormalCG`, matrix-free, `cg_steps` iterations at most).
-    - `oversample`: photon cells per heights sample along each axis (transport).
+    - `oversample`: photon cells per heights sample along each axis.
     - `floor`: a uniform irradiance added to the unit-mean target (the transport
       equation needs light everywhere on the screen; black regions get this much).
     - `boundary_weight`: weight of the boundary condition (pixels of misplacement).
-    - `smooth`: weight of the smoothness prior (``"least_squares"``).
-    - `window`: triangle window of the image fit, pixels (``"least_squares"``).
+    - `regularization`: weight of a curvature prior on the preconditioned variable
+      (transport); 0.01 by default (0.003 and 0.1 gave 0.14 and 0.06 on the camera
+      benchmark, 0.01 gave 0.048: see ``benchmarks/bench_design.py``).
+    - `start_scale`: the weak-lens start is scaled by this (1: the full weak-lens
+      solution, which folds where the target is dark; 0.5 by default).
     - `predict_photons`: photon grid of the predicted caustic (default 4 per pixel side).
     - `throw_errors`: raise if a level's solver fails (otherwise the result says so).
     - `callback`: called after every solver step with a dict (level, shape, step, loss).
@@ -513,10 +516,10 @@ def design_lens(
         raise ValueError(f"`ior` must be > 1 for a glass lens in air, got {ior}")
     t = _check_target(target)
     m = _check_mask(mask, t.shape)
-    if method not in METHODS:
-        raise ValueError(f"`method` must be one of {METHODS}, got {method!r}")
     if solver not in SOLVERS:
         raise ValueError(f"`solver` must be one of {SOLVERS}, got {solver!r}")
+    if levels is None:
+        levels = default_levels(t.shape)
     try:
         levels = [int(n) for n in levels]
     except TypeError as err:
@@ -530,6 +533,9 @@ def design_lens(
     ):
         if isinstance(value, bool) or not isinstance(value, int) or value < low:
             raise ValueError(f"`{name}` must be an int >= {low}, got {value!r}")
+    for name, value in (("regularization", regularization), ("start_scale", start_scale)):
+        if not (isinstance(value, (int, float)) and math.isfinite(value) and value >= 0):
+            raise ValueError(f"`{name}` must be a finite number >= 0, got {value!r}")
     if not (isinstance(floor, (int, float)) and 0 < floor < 1):
         raise ValueError(f"`floor` must be in (0, 1), got {floor!r}")
     shapes = [_level_shape(n, width, height) for n in levels]
@@ -613,7 +619,7 @@ def design_lens(
             h_start = _resample(np.asarray(initial, float), shape)
             u = _laplacian(jnp.asarray(h_start), dx, dy) * weak
         elif k == 0:
-            u = jnp.asarray(-np.log(goal0), dtype)
+            u = jnp.asarray(-start_scale * np.log(goal0), dtype)
         else:
             # carry the heights to the finer grid, then back to the preconditioned variable
             h_fine = _resample(h, shape)
@@ -626,7 +632,7 @@ def design_lens(
             throw,
             ior=ior,
         )
-        level_goal = jnp.asarray(goal, dtype)
+        level_goal = jnp.asarray(_level_target(goal, shape), dtype)
         problem_grid = (oversample * rows + 1, oversample * cols + 1)
         problem = _Problem(
             scene,
@@ -636,22 +642,15 @@ def design_lens(
             weak,
             (oversample * rows + 1, oversample * cols + 1),
             float(boundary_weight),
+            float(regularization),
             3,
             _sampling(shape, aperture, problem_grid) if vertical else None,
             dx,
             dy,
         )
-        if method == "transport" or k == 0:
-            fn, args = _transport_residual, problem
-        else:
-            fn, args = _image_residual, (problem, jnp.asarray(m), jnp.asarray(goal), smooth, window)
-        info = {
-            "level": k,
-            "shape": shape,
-            "method": "transport" if fn is problem.transport_residual else method,
-        }
+        info = {"level": k, "shape": shape}
         u, steps, result, compile_s, seconds = _run_level(
-            fn, sol, u, args, max_steps, history, callback, info
+            _transport_residual, sol, u, problem, max_steps, history, callback, info
         )
         h = np.asarray(problem.heights(u))
         h = h - h.max()
@@ -697,5 +696,4 @@ def design_lens(
         levels=level_reports,
         result=result,
         timings=timings,
-        method=method,
     )
