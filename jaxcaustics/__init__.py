@@ -4,10 +4,54 @@ Build a scene (`WaterScene`: a `HeightField` water surface; `LensScene`: a glass
 with a height-field top; `MeshScene`: a glass or mirror `Mesh` with optional occluders;
 each with a `DirectionalLight` or `PointLight` and a `PlaneReceiver`), then `render` it.
 The NumPy reference lives in `jaxcaustics.reference` and imports no JAX.
+
+Inverse problems: `design_lens` (a caustic lens for a target picture; `export_lens`
+writes it for the workshop, `manufacturability` reports whether it can be milled,
+`verify_lens` renders the exported solid with the reference) and `recover_surface` (a
+water surface from its caustic).
 """
 
 import importlib.metadata
 
+from ._export import (
+    ManufacturabilityReport as ManufacturabilityReport,
+)
+from ._export import (
+    export_lens as export_lens,
+)
+from ._export import (
+    lens_height_map as lens_height_map,
+)
+from ._export import (
+    lens_solid as lens_solid,
+)
+from ._export import (
+    manufacturability as manufacturability,
+)
+from ._inverse.design import (
+    LensDesign as LensDesign,
+)
+from ._inverse.design import (
+    design_lens as design_lens,
+)
+from ._inverse.design import (
+    fresnel_zones as fresnel_zones,
+)
+from ._inverse.recover import (
+    RecoveryResult as RecoveryResult,
+)
+from ._inverse.recover import (
+    recover_surface as recover_surface,
+)
+from ._inverse.verify import (
+    Verification as Verification,
+)
+from ._inverse.verify import (
+    relative_l2 as relative_l2,
+)
+from ._inverse.verify import (
+    verify_lens as verify_lens,
+)
 from ._io import (
     read_exr as read_exr,
 )

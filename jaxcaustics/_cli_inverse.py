@@ -79,11 +79,24 @@ def add_design(subparsers) -> None:
         "--throw", type=length, default=0.5, help="lens to screen distance (default 500mm)"
     )
     design.add_argument("--ior", type=float, default=1.5, help="index of refraction (1.5)")
-    design.add_argument("--size", type=int, default=64, help="target columns (default 64)")
+    design.add_argument("--size", type=int, default=128, help="target columns (default 128)")
     design.add_argument(
-        "--levels", default="16,32,64", help="height-grid sizes, coarse to fine (16,32,64)"
+        "--levels",
+        default=None,
+        help="height-grid sizes, coarse to fine (default: 32, 64, ... up to twice --size)",
     )
-    design.add_argument("--steps", type=int, default=10, help="solver steps per level (10)")
+    design.add_argument("--steps", type=int, default=40, help="solver steps per level (40)")
+    design.add_argument(
+        "--solver",
+        default="levenberg_marquardt",
+        choices=("levenberg_marquardt", "gauss_newton", "lbfgs"),
+    )
+    design.add_argument(
+        "--max-relief",
+        type=length,
+        default=None,
+        help="deepest relief the blank allows; deeper designs are folded into Fresnel zones",
+    )
     design.add_argument(
         "--tool-radius", type=length, default=0.001, help="ball-end mill radius (1mm)"
     )
@@ -134,11 +147,11 @@ def run_design(args: argparse.Namespace) -> int:
     import jax.numpy as jnp
 
     from ._export import export_lens
-    from ._inverse.design import _resample, design_lens
+    from ._inverse.design import _resample, default_levels, design_lens
     from ._io import write_png
 
-    levels = _levels(args.levels)
     target = _load_target(args.target, args.size)
+    levels = list(default_levels(target.shape)) if args.levels is None else _levels(args.levels)
     height = args.height or args.width * target.shape[0] / target.shape[1]
     spec = dict(
         width=args.width, height=height, thickness=args.thickness, throw=args.throw, ior=args.ior
@@ -156,6 +169,8 @@ def run_design(args: argparse.Namespace) -> int:
                 target,
                 levels=(levels[k],),
                 max_steps=args.steps,
+                solver=args.solver,
+                max_relief=args.max_relief if k == len(levels) - 1 else None,
                 initial=initial,
                 throw_errors=False,
                 callback=lambda info: losses.append(float(info["loss"])),
@@ -183,6 +198,7 @@ def run_design(args: argparse.Namespace) -> int:
     summary = {
         "levels": levels,
         "steps_per_level": args.steps,
+        "solver": args.solver,
         "seconds": seconds,
         "final_loss": float(design.loss_history[-1]) if design.loss_history else None,
         "relief_mm": 1000 * design.relief,
@@ -191,7 +207,8 @@ def run_design(args: argparse.Namespace) -> int:
     if args.verify:
         from ._inverse.verify import verify_lens
 
-        report = verify_lens(design.scene, design.target, photons_per_axis=512)
+        photons = 8 * max(design.target.shape)  # 64 photons per pixel on average
+        report = verify_lens(design.scene, design.target, photons_per_axis=photons)
         print(report)
         summary["verification"] = {
             "nominal": report.nominal,

@@ -127,3 +127,53 @@ def test_masked_target_keeps_the_outside_dark_and_the_inside_even(circle):
     # the floor (2% of the mean) is all that the design should leave outside: about 1%
     assert ref[~mask].sum() / ref.sum() < 0.03
     assert np.std(ref[mask] / ref[mask].mean()) < 0.15
+
+
+# ----------------------------------------------------------------- schedule and folding
+
+
+def test_default_levels_go_up_to_twice_the_target():
+    assert design_module.default_levels((128, 128)) == (32, 64, 128, 256)
+    assert design_module.default_levels((96, 128)) == (32, 64, 128, 256)
+    assert design_module.default_levels((16, 16)) == (32,)
+
+
+def test_level_targets_keep_the_mean_and_split_pixels_exactly():
+    rng = np.random.default_rng(0)
+    goal = rng.uniform(0.1, 2.0, (12, 16))
+    coarse = design_module._level_target(goal, (6, 8))
+    assert coarse.shape == (6, 8)
+    np.testing.assert_allclose(coarse.mean(), goal.mean(), rtol=1e-12)
+    np.testing.assert_allclose(coarse[0, 0], goal[:2, :2].mean(), rtol=1e-12)
+    fine = design_module._level_target(goal, (24, 32))
+    assert fine.shape == (24, 32)
+    np.testing.assert_array_equal(fine[::2, ::2], goal)
+    np.testing.assert_array_equal(fine[1::2, 1::2], goal)
+    assert design_module._level_target(goal, (12, 16)) is goal
+
+
+def test_fresnel_zones_keep_the_slopes_and_bound_the_relief():
+    x = np.linspace(-1, 1, 64)
+    xx, yy = np.meshgrid(x, x)
+    h = -0.05 * (xx**2 + yy**2)  # relief 0.1
+    folded = design_module.fresnel_zones(h, 0.03)
+    assert folded.max() == 0.0 and folded.min() >= -0.03
+    # away from the folds (steps of 0.03 between neighbours) the slopes are unchanged
+    step = np.abs(np.diff(folded, axis=1) - np.diff(h, axis=1))
+    unfolded = step < 1e-12
+    assert unfolded.mean() > 0.85
+    np.testing.assert_allclose(step[~unfolded], 0.03, atol=1e-12)
+    with pytest.raises(ValueError, match="`depth`"):
+        design_module.fresnel_zones(h, 0.0)
+
+
+def test_max_relief_folds_the_design_into_the_blank(blob_design):
+    d = design_lens(blob(), max_relief=2e-4, **SPEC, **SMALL)
+    assert d.relief <= 2e-4 + 1e-12
+    assert blob_design.relief > 2e-4  # the bound is active (measured: 5.7e-4)
+
+
+def test_lbfgs_design_improves_on_the_flat_lens():
+    d = design_lens(blob(), solver="lbfgs", **{**SPEC, **SMALL, "max_steps": 60})
+    assert d.loss_history[-1] < 0.2 * d.loss_history[0]
+    assert rel_l2(d.predicted, blob()) < 0.5 * rel_l2(np.ones((16, 16)), blob())

@@ -43,7 +43,7 @@ from .._scene import DirectionalLight, HeightField, LensScene, PlaneReceiver, Po
 from .._surface import _catmull_rom, ray_surface_hit
 from .recover import resample_heights
 
-SOLVERS = ("levenberg_marquardt", "gauss_newton")
+SOLVERS = ("levenberg_marquardt", "gauss_newton", "lbfgs")
 
 
 # --------------------------------------------------------------------------- result
@@ -312,6 +312,19 @@ def _sampling(shape, aperture, grid):
     return tuple(jnp.asarray(a) for a in (wy, dwy, wx, dwx))
 
 
+def fresnel_zones(heights, depth: float) -> np.ndarray:
+    """Fold a relief deeper than `depth` into Fresnel zones: the heights modulo `depth`.
+
+    The slopes, which steer the light, are kept everywhere but on the folds, where the
+    surface steps down by `depth` (over one sample of the bicubic surface, which sends the
+    light falling on the step astray). Returns heights in ``[-depth, 0]`` (metres, the
+    same shape)."""
+    h = np.asarray(heights, dtype=float)
+    depth = _positive(depth, "depth")
+    folded = -np.mod(h.max() - h, depth)
+    return folded - folded.max()
+
+
 def default_levels(shape: Sequence[int]) -> tuple[int, ...]:
     """Coarse-to-fine heights grids for a target of `shape`: powers of two from 32 up to
     twice its longer side (at least one level)."""
@@ -373,7 +386,15 @@ def _transport_residual(u, problem: _Problem):
 # --------------------------------------------------------------------------- solver loop
 
 
+def _half_squares(u, problem: _Problem):
+    """The least-squares loss ``0.5 * sum(residual^2)`` (for the minimisers)."""
+    r = problem.transport_residual(u)
+    return 0.5 * sum(jnp.sum(c**2) for c in jax.tree_util.tree_leaves(r))
+
+
 def _make_solver(name: str, cg_steps: int, rtol: float):
+    if name == "lbfgs":
+        return optx.LBFGS(rtol=rtol, atol=1e-9)
     linear = lx.Normal(lx.CG(rtol=1e-3, atol=1e-8, max_steps=cg_steps))
     if name == "gauss_newton":
         return optx.GaussNewton(rtol=rtol, atol=1e-9, linear_solver=linear)
@@ -401,7 +422,10 @@ def _solver_step(fn, solver, y, state, args):
     y, state, _ = solver.step(wrapped, y, args, {}, state, frozenset())
     done, result = solver.terminate(wrapped, y, args, {}, state, frozenset())
     r = fn(y, args)
-    loss = 0.5 * sum(jnp.sum(c**2) for c in jax.tree_util.tree_leaves(r))
+    if isinstance(r, jax.Array) and r.ndim == 0:  # a minimiser's loss
+        loss = r
+    else:
+        loss = 0.5 * sum(jnp.sum(c**2) for c in jax.tree_util.tree_leaves(r))
     return y, state, done, result, loss
 
 
@@ -448,7 +472,7 @@ def design_lens(
     screen_extent: Sequence[float] | None = None,
     levels: Sequence[int] | None = None,
     max_steps: int = 40,
-    solver: Literal["levenberg_marquardt", "gauss_newton"] = "levenberg_marquardt",
+    solver: Literal["levenberg_marquardt", "gauss_newton", "lbfgs"] = "levenberg_marquardt",
     oversample: int = 1,
     floor: float = 0.02,
     boundary_weight: float = 1.0,
@@ -457,6 +481,7 @@ def design_lens(
     cg_steps: int = 30,
     rtol: float = 1e-4,
     predict_photons: int | None = None,
+    max_relief: float | None = None,
     throw_errors: bool = True,
     callback: Callable[[dict], None] | None = None,
     initial=None,
@@ -484,8 +509,12 @@ def design_lens(
       of two from 32 up to twice the target's longer side (heights finer than the
       pixels: a photon cell per half pixel).
     - `max_steps`: solver steps per level.
-    - `solver`: ``"levenberg_marquardt"`` or ``"gauss_newton"`` (both with Lineax
-      `NormalCG`, matrix-free, `cg_steps` iterations at most).
+    - `solver`: ``"levenberg_marquardt"`` or ``"gauss_newton"`` (least squares, both
+      with Lineax `NormalCG`, matrix-free, `cg_steps` iterations at most), or
+      ``"lbfgs"`` (Optimistix's limited-memory BFGS on ``0.5 * sum(residual^2)``).
+    - `max_relief`: the deepest relief the blank allows (metres), e.g. Mitsuba's
+      tutorial bound of +-0.5% of the width; a deeper design is folded into Fresnel
+      zones (`fresnel_zones`) after the optimisation. ``None``: no bound.
     - `oversample`: photon cells per heights sample along each axis.
     - `floor`: a uniform irradiance added to the unit-mean target (the transport
       equation needs light everywhere on the screen; black regions get this much).
@@ -536,6 +565,8 @@ def design_lens(
     for name, value in (("regularization", regularization), ("start_scale", start_scale)):
         if not (isinstance(value, (int, float)) and math.isfinite(value) and value >= 0):
             raise ValueError(f"`{name}` must be a finite number >= 0, got {value!r}")
+    if max_relief is not None:
+        max_relief = _positive(max_relief, "max_relief")
     if not (isinstance(floor, (int, float)) and 0 < floor < 1):
         raise ValueError(f"`floor` must be in (0, 1), got {floor!r}")
     shapes = [_level_shape(n, width, height) for n in levels]
@@ -611,6 +642,7 @@ def design_lens(
     level_reports: list[dict[str, Any]] = []
     result = optx.RESULTS.successful
     sol = _make_solver(solver, cg_steps, rtol)
+    objective = _half_squares if solver == "lbfgs" else _transport_residual
     h = None
     for k, shape in enumerate(shapes):
         rows, cols = shape
@@ -650,7 +682,7 @@ def design_lens(
         )
         info = {"level": k, "shape": shape}
         u, steps, result, compile_s, seconds = _run_level(
-            _transport_residual, sol, u, problem, max_steps, history, callback, info
+            objective, sol, u, problem, max_steps, history, callback, info
         )
         h = np.asarray(problem.heights(u))
         h = h - h.max()
@@ -673,6 +705,8 @@ def design_lens(
             raise RuntimeError(f"level {k} ({shape}): the heights are not finite")
 
     assert h is not None
+    if max_relief is not None and h.max() - h.min() > max_relief:
+        h = fresnel_zones(h, max_relief)
     if thickness + h.min() <= 0.0:
         msg = (
             f"`thickness` {thickness} m is too thin for the design: its relief is "
