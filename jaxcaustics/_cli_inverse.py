@@ -120,7 +120,9 @@ def _levels(text: str) -> list[int]:
     return levels
 
 
-def _run_levels(rounds, shape, out: Path, label: str, resume: bool) -> int | None:
+def _run_levels(
+    rounds, shape, out: Path, label: str, resume: bool, live: bool = False
+) -> int | None:
     """Run the coarse-to-fine rounds (state: heights on the final grid and the loss) with
     a checkpoint in `out`; returns an exit code when the command should stop (Ctrl-C,
     or a checkpoint of a finished run), else None."""
@@ -136,6 +138,7 @@ def _run_levels(rounds, shape, out: Path, label: str, resume: bool) -> int | Non
         resume=resume,
         describe=lambda s: f"loss {float(s['loss']):.4g}",
         label=label,
+        live=live,
     )
     if interrupted:
         print(f"interrupted after {done} of {len(rounds)} levels; rerun with --resume")
@@ -163,7 +166,12 @@ def run_design(args: argparse.Namespace) -> int:
     designs: dict[int, object] = {}
 
     def level_round(k: int):
-        def run(state):
+        def step_done(info, report):
+            losses.append(float(info["loss"]))
+            rows, cols = info["shape"]
+            report(f"{rows}x{cols} step {info['step']}/{args.steps} loss {info['loss']:.4g}")
+
+        def run(state, report):
             initial = None if k == 0 else np.asarray(state["heights"])
             design = design_lens(
                 target,
@@ -173,7 +181,7 @@ def run_design(args: argparse.Namespace) -> int:
                 max_relief=args.max_relief if k == len(levels) - 1 else None,
                 initial=initial,
                 throw_errors=False,
-                callback=lambda info: losses.append(float(info["loss"])),
+                callback=lambda info: step_done(info, report),
                 **spec,
             )
             designs[k] = design
@@ -184,7 +192,12 @@ def run_design(args: argparse.Namespace) -> int:
 
     start = time.perf_counter()
     code = _run_levels(
-        [level_round(k) for k in range(len(levels))], final_shape, out, "design", args.resume
+        [level_round(k) for k in range(len(levels))],
+        final_shape,
+        out,
+        "design",
+        args.resume,
+        live=True,
     )
     if code is not None or len(levels) - 1 not in designs:
         return code or 0

@@ -67,3 +67,16 @@ def test_bad_checkpoints_name_the_path(tmp_path):
     )
     with pytest.raises(ValueError, match="shape"):
         load_checkpoint(path, _initial())
+
+
+def test_live_rounds_get_a_reporter():
+    seen = []
+
+    def round_(state, report):
+        report(f"at {state}")  # no bar (progress=False): a no-op, but callable
+        seen.append(state)
+        return state + 1
+
+    state, done, interrupted = run_rounds([round_] * 3, 0, progress=False, live=True)
+    assert (state, done, interrupted) == (3, 3, False)
+    assert seen == [0, 1, 2]

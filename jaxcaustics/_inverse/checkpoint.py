@@ -92,6 +92,7 @@ def run_rounds(
     describe: Callable[[Any], str] | None = None,
     progress: bool = True,
     label: str = "optimising",
+    live: bool = False,
 ) -> tuple[Any, int, bool]:
     """Run `rounds` in order from `state`, checkpointing after each.
 
@@ -105,6 +106,9 @@ def run_rounds(
     - `describe`: ``state -> str`` for the progress bar (for example the loss).
     - `progress`: show a progress bar (tqdm) with rounds, elapsed time and `describe`.
     - `label`: the progress bar's label.
+    - `live`: call each round as ``round(state, report)``, where ``report(text)`` shows
+      `text` on the progress bar while the round runs (for example the solver step and
+      its loss).
 
     **Returns:** ``(state, rounds_done, interrupted)``. On Ctrl-C (`KeyboardInterrupt`)
     the run stops after saving nothing new (the last checkpoint stays valid) and returns
@@ -119,10 +123,15 @@ def run_rounds(
 
         bar = tqdm(total=len(rounds), initial=done, desc=label, unit="round")
     start = time.perf_counter()
+
+    def report(text: str) -> None:
+        if bar is not None:
+            bar.set_postfix_str(f"{text} {time.perf_counter() - start:.1f} s")
+
     interrupted = False
     try:
         for index in range(done, len(rounds)):
-            new_state = rounds[index](state)
+            new_state = rounds[index](state, report) if live else rounds[index](state)
             jax.block_until_ready(new_state)
             state, done = new_state, index + 1
             if checkpoint is not None:
