@@ -154,3 +154,15 @@ def test_readme_glass_example_runs(tmp_path, monkeypatch):
     assert namespace["image"].shape == (128, 128)
     assert namespace["result"].image.shape == (64, 64)
     assert float(namespace["result"].image.max()) > 1.0  # the ball focuses light
+
+
+@pytest.mark.slow
+def test_readme_design_example_runs(tmp_path, monkeypatch):
+    readme = (Path(__file__).resolve().parent.parent / "README.md").read_text()
+    code = readme.split("```python\n")[3].split("```", 1)[0]
+    monkeypatch.chdir(tmp_path)
+    namespace: dict = {}
+    exec(compile(code, "README.md", "exec"), namespace)
+    assert (tmp_path / "lens" / "lens.stl").is_file()
+    # the exported solid, rendered by the reference, is close to the target
+    assert namespace["check"].nominal < 0.1, namespace["check"]
