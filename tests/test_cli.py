@@ -164,5 +164,8 @@ def test_readme_design_example_runs(tmp_path, monkeypatch):
     namespace: dict = {}
     exec(compile(code, "README.md", "exec"), namespace)
     assert (tmp_path / "lens" / "lens.stl").is_file()
-    # the exported solid, rendered by the reference, is close to the target
+    # the exported solid, rendered by the reference, is close to the target. Bound: the
+    # 64 x 64 design's own error is about 0.05 (examples/design_lens.py: 0.049 at 32
+    # photons per pixel side); verify_lens's default 512^2 photons (8 per pixel side) add
+    # binning noise (0.062 there) and the flat facets of the solid add more
     assert namespace["check"].nominal < 0.1, namespace["check"]

@@ -122,7 +122,14 @@ def test_masked_target_moves_light_into_the_mask(circle):
     assert outside < 0.2, outside
 
 
-@pytest.mark.xfail(reason="the transport solve does not converge for a hard mask yet", strict=False)
+@pytest.mark.xfail(
+    reason=(
+        "the transport solve does not converge for a hard disc mask yet: measured 10% of "
+        "the light outside and an inside std of 0.88 here; 6% and 0.36 with the default "
+        "schedule at 32 x 32"
+    ),
+    strict=False,
+)
 def test_masked_target_keeps_the_outside_dark_and_the_inside_even(circle):
     mask, ref = circle
     # the floor (2% of the mean) is all that the design should leave outside: about 1%
