@@ -41,7 +41,8 @@ from .._optics import refract_components
 from .._photons import _grid
 from .._scene import DirectionalLight, HeightField, LensScene, PlaneReceiver, PointLight
 from .._surface import _catmull_rom, ray_surface_hit
-from .recover import resample_heights
+from .recover import _laplacian as _five_point
+from .recover import check_irradiance, resample_heights
 
 SOLVERS = ("levenberg_marquardt", "gauss_newton", "lbfgs")
 
@@ -106,13 +107,7 @@ def _check_target(target) -> np.ndarray:
         raise ValueError(f"`target` must be a 2-D image (rows, cols), got shape {t.shape}")
     if min(t.shape) < 4:
         raise ValueError(f"`target` needs at least 4x4 pixels, got shape {t.shape}")
-    if not np.all(np.isfinite(t)):
-        raise ValueError("`target` contains NaN or infinite values")
-    if np.any(t < 0):
-        raise ValueError("`target` must be non-negative (an irradiance image)")
-    if not np.any(t > 0):
-        raise ValueError("`target` is all zeros: there is nothing to design for")
-    return t
+    return check_irradiance(t, "there is nothing to design for")
 
 
 def _check_mask(mask, shape) -> np.ndarray:
@@ -195,8 +190,7 @@ class _Problem(eqx.Module):
     """Everything a level's residual needs (arrays are leaves; shapes static)."""
 
     scene: LensScene
-    target: jax.Array  # (rows, cols) screen irradiance to reach (floor included)
-    log_target: jax.Array
+    log_target: jax.Array  # (rows, cols) log of the screen irradiance to reach
     screen: jax.Array  # (4,) extent
     weak: float = eqx.field(static=True)  # D of the weak-lens relation
     grid: tuple[int, int] = eqx.field(static=True)  # photon grid (vertices)
@@ -262,7 +256,7 @@ class _Problem(eqx.Module):
             * 0.25
             * (density[:-1, :-1] + density[:-1, 1:] + density[1:, 1:] + density[1:, :-1])
         )
-        rows, cols = self.target.shape
+        rows, cols = self.log_target.shape
         sx0, sx1, sy0, sy1 = self.screen
         pdx, pdy = (sx1 - sx0) / cols, (sy1 - sy0) / rows
         cx = 0.25 * (xa + xb + xc + xd)
@@ -400,11 +394,8 @@ def _flat_lens(light, aperture, thickness: float, throw: float, ior: float):
 @jax.jit
 def _laplacian(h: jax.Array, dx: float, dy: float) -> jax.Array:
     """The 5-point Laplacian with zero-flux boundaries (the inverse of `_neumann_poisson`
-    up to the mean)."""
-    p = jnp.pad(h, 1, mode="edge")
-    return (p[1:-1, 2:] + p[1:-1, :-2] - 2 * h) / dx**2 + (
-        p[2:, 1:-1] + p[:-2, 1:-1] - 2 * h
-    ) / dy**2
+    up to the mean): the water recovery's kernel with edge padding."""
+    return _five_point(h, "clamp", 1.0 / dx**2, 1.0 / dy**2)
 
 
 def _resample(h: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
@@ -703,11 +694,10 @@ def design_lens(
         problem_grid = (oversample * rows + 1, oversample * cols + 1)
         problem = _Problem(
             scene,
-            level_goal,
             jnp.log(level_goal * flux_scale),
             jnp.asarray(screen, dtype),
             weak,
-            (oversample * rows + 1, oversample * cols + 1),
+            problem_grid,
             float(boundary_weight),
             float(regularization),
             3,

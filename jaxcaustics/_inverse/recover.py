@@ -309,13 +309,19 @@ def _load_target(target, ior) -> np.ndarray:
         raise ValueError(f"`target` must have shape {what} for ior={ior!r}, got {arr.shape}")
     if arr.shape[0] < 2 or arr.shape[1] < 2:
         raise ValueError(f"`target` needs at least 2x2 pixels, got shape {arr.shape}")
-    if not np.all(np.isfinite(arr)):
+    return check_irradiance(arr, "there is no caustic to match")
+
+
+def check_irradiance(target: np.ndarray, if_dark: str) -> np.ndarray:
+    """Checks that `target` (an array) is a usable irradiance image: finite,
+    non-negative, not all zeros (the error then says `if_dark`). Returns it."""
+    if not np.all(np.isfinite(target)):
         raise ValueError("`target` contains NaN or infinite values")
-    if np.any(arr < 0):
+    if np.any(target < 0):
         raise ValueError("`target` must be non-negative (an irradiance image)")
-    if not np.any(arr > 0):
-        raise ValueError("`target` is all zeros: there is no caustic to match")
-    return arr
+    if not np.any(target > 0):
+        raise ValueError(f"`target` is all zeros: {if_dark}")
+    return target
 
 
 def _shape2(value, name: str) -> tuple[int, int]:
