@@ -226,6 +226,33 @@ def mesh_photons(
         d0 = offset / jnp.sqrt(r2)[:, None]
         density = scene.light.intensity * jnp.abs(d0 @ axis) / r2
 
+    rows, cols = grid
+    positions, directions, densities, valids = [], [], [], []
+    for landed, d, flux, alive in trace_mesh_rays(scene, o0, d0, density, batch_size, terminal):
+        positions.append(landed.reshape(rows, cols, 3))
+        directions.append(d.reshape(rows, cols, 3))
+        densities.append(flux.reshape(rows, cols))
+        valids.append(alive.reshape(rows, cols))
+    return _stack_channels(positions, directions, densities, valids, cell_area, dtype)
+
+
+def trace_mesh_rays(
+    scene: MeshScene,
+    o0: Float[Array, "P 3"],
+    d0: Float[Array, "P 3"],
+    density: Float[Array, " P"],
+    batch_size: int = 4096,
+    terminal=None,
+) -> list[tuple[Array, Array, Array, Array]]:
+    """Trace rays from the light exactly through a `MeshScene` to the screen.
+
+    Rays start at `o0` (before the generator) going along unit `d0`, carrying `density`
+    (flux, or flux per emission area). See `mesh_photons` for the path rules and for
+    `terminal`. **Returns:** one ``(landed (P, 3), direction (P, 3), flux (P,),
+    valid (P,))`` per index of refraction; ``flux`` is 0 where not valid.
+    """
+    dtype = o0.dtype
+    radius = _emission_frame(scene, dtype)[1]
     verts = scene.generator.vertices
     triangles = verts[scene.generator.faces]
     fnormals = face_normals(verts, scene.generator.faces)
@@ -246,7 +273,7 @@ def mesh_photons(
         t_occ, _ = nearest_hits(o, d, occluders, eps, batch_size)
         return t_occ < t_limit
 
-    positions, directions, densities, valids = [], [], [], []
+    paths = []
     for ior in scene.iors:
         o, d = o0, d0
         alive = jnp.ones(o.shape[:1], bool)
@@ -297,9 +324,5 @@ def mesh_photons(
         else:
             landed, found = terminal(o, d)
             alive = alive & found
-        rows, cols = grid
-        positions.append(landed.reshape(rows, cols, 3))
-        directions.append(d.reshape(rows, cols, 3))
-        densities.append(jnp.where(alive, flux, 0.0).reshape(rows, cols))
-        valids.append(alive.reshape(rows, cols))
-    return _stack_channels(positions, directions, densities, valids, cell_area, dtype)
+        paths.append((landed, d, jnp.where(alive, flux, 0.0), alive))
+    return paths

@@ -478,3 +478,27 @@ def _splat_gaussian(points, flux, valid, shape, sigma, window):
     splat = flux[:, None, None] * w[:, :, None, 1] * w[:, None, :, 0]  # (P, rows, cols)
     rows, cols = jnp.broadcast_arrays(index[:, :, None, 1], index[:, None, :, 0])
     return _scatter(shape, dtype, rows, cols, splat)
+
+
+def sum_in_batches(raster, batch_size: int, *arrays):
+    """Sum ``raster(*chunk)`` (an array or a pytree of arrays) over chunks of
+    `batch_size` primitives (triangles, photons) given as `arrays` with the primitives
+    along their first axis, the last array being the validity mask (padding is
+    invalid): the memory bound of the methods, one chunk at a time; each step is
+    recomputed in the reverse pass."""
+    count = arrays[0].shape[0]
+    if count <= batch_size:
+        return raster(*arrays)
+    chunks = -(-count // batch_size)
+    pad = chunks * batch_size - count
+    padded = [jnp.pad(a, [(0, pad)] + [(0, 0)] * (a.ndim - 1)) for a in arrays]
+    stacked = [a.reshape((chunks, batch_size) + a.shape[1:]) for a in padded]
+
+    @jax.checkpoint
+    def step(total, chunk):
+        return jax.tree.map(jnp.add, total, raster(*chunk)), None
+
+    first = [a[0] for a in stacked]
+    zeros = jax.tree.map(lambda s: jnp.zeros(s.shape, s.dtype), jax.eval_shape(raster, *first))
+    total, _ = jax.lax.scan(step, zeros, stacked)
+    return total

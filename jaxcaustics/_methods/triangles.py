@@ -41,6 +41,7 @@ from .._raster import (
     rasterize_gouraud,
     signed_area,
     splat_gaussian,
+    sum_in_batches,
 )
 from .._scene import LensScene, PlaneReceiver
 
@@ -121,26 +122,6 @@ def _vertex_irradiance(flux: Array, area: Array, valid: Array, grid) -> Array:
     return irradiance.reshape(irradiance.shape[0], -1)[:, index]
 
 
-def _in_batches(raster, batch_size: int, shape, *arrays):
-    """Sum ``raster(*chunk)`` over chunks of `batch_size` primitives (memory bound:
-    one chunk's windows at a time; each step is recomputed in the reverse pass)."""
-    count = arrays[0].shape[0]
-    if count <= batch_size:
-        return raster(*arrays)
-    chunks = -(-count // batch_size)
-    pad = chunks * batch_size - count
-    # padding primitives are invalid (the last array is the validity mask)
-    padded = [jnp.pad(a, [(0, pad)] + [(0, 0)] * (a.ndim - 1)) for a in arrays]
-    stacked = [a.reshape((chunks, batch_size) + a.shape[1:]) for a in padded]
-
-    @jax.checkpoint
-    def step(image, chunk):
-        return image + raster(*chunk), None
-
-    image, _ = jax.lax.scan(step, jnp.zeros(shape, arrays[0].dtype), stacked)
-    return image
-
-
 @eqx.filter_jit
 def _triangles_image(
     photons, extent, shape, reconstruction: str, window: int, supersample: int, batch_size: int
@@ -162,7 +143,7 @@ def _triangles_image(
         values = _vertex_irradiance(tri.flux, area, tri.valid, photons.grid_shape)
     images = jnp.stack(
         [
-            _in_batches(raster, batch_size, shape, tri.pixels[c], values[c], tri.valid[c])
+            sum_in_batches(raster, batch_size, tri.pixels[c], values[c], tri.valid[c])
             for c in range(tri.valid.shape[0])
         ]
     )

@@ -1,0 +1,264 @@
+"""Geometry buffers seen from the light, and photons shaded from them.
+
+Shah et al.'s caustics mapping renders the refractor from the light into a texture of
+positions and normals (the *refractive vertex grid*) and the receiver into a *positions
+texture*; Wyman & Nichols' adaptive caustic maps keep the front and back surfaces of the
+refractor as geometry buffers and create photons anywhere in the light's view by
+*deferred shading*: sampling those buffers (bilinear interpolation, so the buffers can
+be coarser than the photon grid) instead of rasterising the object again.
+
+Here the buffers are made by casting the light's rays at the texel centres against the
+mesh (`nearest_hits`, then a differentiable hit on the triangle found: the buffers are
+differentiable with respect to the vertices). A photon at view point ``(u, v)`` is then
+shaded with two interfaces, as image-space refraction does: refract at the interpolated
+front surface, find where the refracted ray leaves through the back surface, refract out,
+find where it meets the receiver. The two ray/surface intersections are either the
+papers' image-space estimate (`ray_geo`: Shah et al.'s iterative ``rayGeo`` update on a
+positions texture) or exact (`intersection="exact"`: the photon is traced through the
+mesh, with as many interfaces as the scene allows, and onto the plane ``z = 0``).
+"""
+
+from __future__ import annotations
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+from jaxtyping import Array, Bool, Float
+
+from ._intersect import face_normals, hit_on_triangle, nearest_hits, vertex_normals
+from ._light_view import LightView
+from ._mesh import MeshScene
+from ._optics import fresnel_transmittance, reflect, refract_components
+from ._photons import trace_mesh_rays
+
+INTERSECTIONS = ("image_space", "exact")
+
+
+class GeometryBuffers(eqx.Module):
+    """The light's view of the generator and the receiver, ``(R, R)`` texels over
+    `view.window`. Positions in metres, unit normals pointing out of the object.
+
+    - `front_position`, `front_normal`: where the light's ray through each texel centre
+      first meets the generator.
+    - `back_position`, `back_normal`: where it last meets it (``None`` for a mirror).
+    - `hit`: ``(R, R)`` bool: the ray meets the generator.
+    - `receiver_position`: the receiver positions texture: where the ray meets ``z = 0``.
+    """
+
+    view: LightView
+    front_position: Float[Array, "R R 3"]
+    front_normal: Float[Array, "R R 3"]
+    back_position: Float[Array, "R R 3"] | None
+    back_normal: Float[Array, "R R 3"] | None
+    hit: Bool[Array, "R R"]
+    receiver_position: Float[Array, "R R 3"]
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        return tuple(self.hit.shape)  # type: ignore[return-value]
+
+
+def _surface_hits(scene: MeshScene, origins, directions, batch_size):
+    """First hit of rays on the generator: points, outward unit shading normals, found."""
+    verts = scene.generator.vertices
+    faces = scene.generator.faces
+    triangles = verts[faces]
+    t_near, face = nearest_hits(origins, directions, triangles, 0.0, batch_size)
+    found = jnp.isfinite(t_near)
+    t, bary = hit_on_triangle(origins, directions, triangles[face])
+    t = jnp.where(found, t, 0.0)
+    points = origins + t[:, None] * directions
+    if scene.normals == "smooth":
+        vn = vertex_normals(verts, faces)
+        normals = jnp.einsum("pk,pkc->pc", bary, vn[faces[face]])
+    else:
+        normals = face_normals(verts, faces)[face]
+    normals = normals / jnp.linalg.norm(normals, axis=-1, keepdims=True)
+    return points, normals, found
+
+
+def geometry_buffers(
+    scene: MeshScene, view: LightView, resolution: int, batch_size: int = 4096
+) -> GeometryBuffers:
+    """Render the geometry buffers of `scene` from the light at ``resolution^2`` texels."""
+    shape = (resolution, resolution)
+    u, v = view.texel_centres(shape)
+    origins, directions = view.rays(u.reshape(-1), v.reshape(-1))
+    origins = origins.astype(scene.generator.vertices.dtype)
+    front, front_n, hit = _surface_hits(scene, origins, directions, batch_size)
+    back = back_n = None
+    if scene.material == "refractor":
+        # the last surface along each ray: the first one met coming back from beyond
+        verts = jax.lax.stop_gradient(scene.generator.vertices)
+        far = jnp.max(jnp.linalg.norm(verts[None, :, :] - origins[:1, None, :], axis=-1))
+        if not view.perspective:
+            far = jnp.max(jnp.abs((verts - view.centre) @ view.axis)) + view.start
+        beyond = origins + 2.0 * far * directions
+        back, back_n, _ = _surface_hits(scene, beyond, -directions, batch_size)
+        back = back.reshape(shape + (3,))
+        back_n = back_n.reshape(shape + (3,))
+    down = directions[:, 2] < 0
+    t_floor = -origins[:, 2] / jnp.where(down, directions[:, 2], -1.0)
+    receiver = origins + jnp.where(down, t_floor, 0.0)[:, None] * directions
+    return GeometryBuffers(
+        view,
+        front.reshape(shape + (3,)),
+        front_n.reshape(shape + (3,)),
+        back,
+        back_n,
+        hit.reshape(shape),
+        receiver.reshape(shape + (3,)),
+    )
+
+
+def _taps(x: Array, y: Array, shape: tuple[int, int]):
+    """Bilinear taps (clamped to the edge) at continuous texel coordinates."""
+    rows, cols = shape
+    fx, fy = x - 0.5, y - 0.5
+    ix, iy = jnp.floor(jax.lax.stop_gradient(fx)), jnp.floor(jax.lax.stop_gradient(fy))
+    tx, ty = fx - ix, fy - iy
+    ix, iy = ix.astype(jnp.int32), iy.astype(jnp.int32)
+    taps = []
+    for di, wy in ((0, 1.0 - ty), (1, ty)):
+        for dj, wx in ((0, 1.0 - tx), (1, tx)):
+            r = jnp.clip(iy + di, 0, rows - 1)
+            c = jnp.clip(ix + dj, 0, cols - 1)
+            taps.append((r, c, wy * wx))
+    return taps
+
+
+def bilinear(texture: Array, x: Array, y: Array, mask: Array | None = None):
+    """Sample `texture` ``(rows, cols, ...)`` bilinearly at texel coordinates ``(x, y)``
+    (columns, rows; texel centres at ``+ 0.5``), clamped to the edge.
+
+    With a `mask` ``(rows, cols)``, only texels inside it are blended (weights
+    renormalised) and the coverage (the bilinear weight of the mask) is returned too:
+    ``(value, coverage)``.
+    """
+    taps = _taps(x, y, texture.shape[:2])
+    extra = (None,) * (texture.ndim - 2)
+    if mask is None:
+        return sum(w[(...,) + extra] * texture[r, c] for r, c, w in taps)
+    weights = [jnp.where(mask[r, c], w, 0.0) for r, c, w in taps]
+    coverage = sum(weights)
+    safe = jnp.where(coverage > 0, coverage, 1.0)
+    value = sum((w / safe)[(...,) + extra] * texture[r, c] for (r, c, _), w in zip(taps, weights))
+    return value, coverage
+
+
+def _unit(vectors: Array) -> Array:
+    """Normalise ``(..., 3)`` vectors; a zero vector (no surface sampled) becomes +z, with
+    finite gradients."""
+    norm2 = jnp.sum(vectors * vectors, axis=-1, keepdims=True)
+    ok = norm2 > 0
+    safe = jnp.where(ok, vectors, jnp.array([0.0, 0.0, 1.0], vectors.dtype))
+    return safe * jax.lax.rsqrt(jnp.where(ok, norm2, 1.0))
+
+
+def _length(vectors: Array) -> Array:
+    """``|v|`` over the last axis, with a finite gradient at 0."""
+    norm2 = jnp.sum(vectors * vectors, axis=-1)
+    ok = norm2 > 0
+    return jnp.where(ok, jnp.sqrt(jnp.where(ok, norm2, 1.0)), 0.0)
+
+
+def _sample(view: LightView, texture: Array, points: Array, mask: Array | None = None):
+    """Sample a texture over the view at the light's projection of world `points`."""
+    u, v = view.project(points)
+    x, y = view.to_texels(u, v, texture.shape[:2])
+    return bilinear(texture, x, y, mask)
+
+
+def ray_geo(
+    view: LightView, positions: Array, origin: Array, direction: Array, iterations: int
+) -> Array:
+    """Shah et al.'s image-space ray/geometry intersection estimate.
+
+    Starting from the distance between `origin` and the surface of the positions texture
+    behind it in the light's view, repeat `iterations` times: step that distance along
+    the ray, look up the surface point the light sees there, and take its distance from
+    `origin` as the new distance (the paper's ``rayGeo``; it starts from 1 in scene
+    units, which has no meaning in metres). **Returns:** the estimated hit on the ray.
+    """
+    dist = _length(_sample(view, positions, origin) - origin)
+    for _ in range(iterations):
+        probe = origin + dist[..., None] * direction
+        dist = _length(_sample(view, positions, probe) - origin)
+    return origin + dist[..., None] * direction
+
+
+class PhotonHits(eqx.Module):
+    """Photons shaded at view points: per channel ``(C, P, ...)``.
+
+    - `position`: where each photon ends (on or near the receiver), metres.
+    - `flux`: the flux it carries (0 where not valid).
+    - `valid`: it went through the generator and reached the receiver.
+    """
+
+    position: Float[Array, "C P 3"]
+    flux: Float[Array, "C P"]
+    valid: Bool[Array, "C P"]
+
+
+def shade_photons(
+    scene: MeshScene,
+    buffers: GeometryBuffers,
+    u: Array,
+    v: Array,
+    cell_area,
+    *,
+    intersection: str = "image_space",
+    iterations: int = 1,
+    batch_size: int = 4096,
+) -> PhotonHits:
+    """Photons at view points ``(u, v)`` (each standing for `cell_area` of the view).
+
+    ``intersection="image_space"``: deferred shading from the geometry buffers, two
+    interfaces (a photon totally reflected at the back surface, or whose exit estimate
+    falls off the object, is dropped), both intersections by `ray_geo` with `iterations`
+    steps. ``"exact"``: traced through the mesh and onto ``z = 0`` exactly.
+    """
+    view = buffers.view
+    flux0 = view.density(u, v) * cell_area
+    if intersection == "exact":
+        origins, directions = view.rays(u, v)
+        paths = trace_mesh_rays(scene, origins, directions, flux0, batch_size)
+        return PhotonHits(
+            jnp.stack([p[0] for p in paths]),
+            jnp.stack([p[2] for p in paths]),
+            jnp.stack([p[3] for p in paths]),
+        )
+    shape = buffers.shape
+    x, y = view.to_texels(u, v, shape)
+    point, coverage = bilinear(buffers.front_position, x, y, buffers.hit)
+    normal, _ = bilinear(buffers.front_normal, x, y, buffers.hit)
+    normal = _unit(normal)
+    on_object = coverage >= 0.5
+    _, light_dir = view.rays(u, v)
+    positions, fluxes, valids = [], [], []
+    for ior in scene.iors:
+        flux = flux0
+        valid = on_object
+        if scene.material == "mirror":
+            origin, direction = point, reflect(light_dir, normal)
+        else:
+            inside, _, cos_in = refract_components(tuple(light_dir.T), tuple(normal.T), 1.0 / ior)
+            inside = jnp.stack(inside, axis=-1)
+            exit_point = ray_geo(view, buffers.back_position, point, inside, iterations)
+            exit_normal, exit_cover = _sample(view, buffers.back_normal, exit_point, buffers.hit)
+            exit_normal = _unit(exit_normal)
+            out, tir, cos_out = refract_components(tuple(inside.T), tuple(exit_normal.T), ior)
+            origin, direction = exit_point, jnp.stack(out, axis=-1)
+            valid = valid & (exit_cover >= 0.5) & ~tir
+            if scene.fresnel:
+                flux = (
+                    flux
+                    * fresnel_transmittance(cos_in, 1.0 / ior)
+                    * fresnel_transmittance(cos_out, ior)
+                )
+        valid = valid & (direction[..., 2] < 0)
+        landed = ray_geo(view, buffers.receiver_position, origin, direction, iterations)
+        positions.append(landed)
+        fluxes.append(jnp.where(valid, flux, 0.0))
+        valids.append(valid)
+    return PhotonHits(jnp.stack(positions), jnp.stack(fluxes), jnp.stack(valids))

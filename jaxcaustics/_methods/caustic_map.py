@@ -1,0 +1,528 @@
+"""Caustic maps: Shah et al.'s caustics mapping and Wyman & Nichols' adaptive caustic maps.
+
+M. Shah, J. Konttinen, S. Pattanaik, "Caustics Mapping: An Image-Space Technique for
+Real-Time Caustics" (2007), and C. Wyman, G. Nichols, "Adaptive Caustic Maps Using
+Deferred Shading" (2009).
+
+Both build a *caustic map*: an image in the light's view (`LightView`) into which every
+photon that went through the generator adds its flux as a normalised Gaussian splat, at
+the light's projection of where it landed. The final pass projects the map onto the
+receiver as a shadow map would: a receiver point looks up the map (bilinear) at its own
+projection; the map holds flux per unit view area, and the Lambertian factor of the
+papers' shader (``n . l`` for a directional light) is exactly the view area per unit
+surface area (`LightView.area_ratio`), so the result is the irradiance. Images follow
+the library's convention: relative to the light's irradiance on a horizontal plane
+(directional light) or W/m^2 (point light), caustic light only (the light that went
+through the generator).
+
+- `caustics_mapping` (Shah et al.): photons on a dense ``N x N`` grid over the light's
+  view (the refractive vertex grid), shaded from the geometry buffers, all splatted,
+  in batches of bounded memory.
+- `adaptive_caustic_map` (Wyman & Nichols): photons from a coarse grid (64^2), 2 x 2
+  clusters that miss the generator discarded, the others refined down to the level of
+  the equivalent dense grid (``"traversal"`` metric) or until the cluster's photons land
+  in one texel of the caustic map and go out as one photon carrying the cluster's flux
+  (``"error"`` metric, checked from a given level on); batches under a memory limit.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Literal
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jaxtyping import Array
+
+from .._gbuffer import INTERSECTIONS, GeometryBuffers, bilinear, geometry_buffers, shade_photons
+from .._light_view import LightView, light_view
+from .._mesh import MeshScene
+from .._raster import splat_gaussian, sum_in_batches
+
+METRICS = ("traversal", "error")
+DEFAULT_MEMORY_LIMIT = 1 << 30  # bytes: 1 GiB of photon buffer
+
+
+class CausticMapResult(eqx.Module):
+    """Output of `caustics_mapping` and `adaptive_caustic_map`.
+
+    - `image`: irradiance on the receiver, ``(rows, cols)`` or ``(rows, cols, channels)``.
+    - `caustic_map`: flux per texel in the light's view, ``(channels, R, R)``.
+    - `view`: the `LightView` the map is in.
+    - `missed_flux_fraction`: ``(channels,)``: the fraction of the splatted flux that is
+      not in the image (it landed off the receiver).
+    - `stats`: dict of counts (Python ints): ``generated`` (photons shaded, all levels),
+      ``splatted`` (photons added to the map: valid ones, a merged cluster counting once),
+      ``batches`` (kernel calls), ``peak_buffer_photons`` and ``peak_buffer_bytes`` (the
+      largest photon buffer of one call, see `photon_bytes`); the adaptive renderer adds
+      per level lists ``generated_per_level``, ``splatted_per_level``,
+      ``refined_per_level``.
+    """
+
+    image: Array
+    caustic_map: Array
+    view: LightView
+    missed_flux_fraction: Array
+    stats: dict
+
+
+def photon_bytes(channels: int, window: int, dtype) -> int:
+    """Memory one photon takes in a batch, bytes: its view point (2 floats), per channel
+    its landing point, texel coordinates and flux (6 floats) and validity (1 byte), and
+    its splat's ``window x window`` weights per channel."""
+    size = jnp.dtype(dtype).itemsize
+    return size * (2 + channels * (6 + window * window)) + channels
+
+
+def _check_int(value, name: str, low: int) -> int:
+    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < low:
+        raise ValueError(f"`{name}` must be an int >= {low}, got {value!r}")
+    return int(value)
+
+
+def _check_common(scene, map_resolution, sigma, intersection, iterations, memory_limit):
+    if not isinstance(scene, MeshScene):
+        raise ValueError(
+            f"`scene` must be a MeshScene, got {type(scene).__name__} (lens slabs: use "
+            "caustic_triangles)"
+        )
+    if scene.occluders:
+        raise ValueError(
+            "caustic maps do not test occlusion: the scene has occluders (use "
+            "caustic_triangles, whose visibility='distance_map' handles them)"
+        )
+    if intersection not in INTERSECTIONS:
+        raise ValueError(f"`intersection` must be one of {INTERSECTIONS}, got {intersection!r}")
+    _check_int(iterations, "iterations", 0)
+    if map_resolution is None:
+        map_resolution = 2 * max(scene.receiver.shape)
+    map_resolution = _check_int(map_resolution, "map_resolution", 2)
+    if memory_limit is None:
+        memory_limit = DEFAULT_MEMORY_LIMIT
+    memory_limit = _check_int(memory_limit, "memory_limit", 1)
+    return map_resolution, memory_limit
+
+
+def _check_sigma(sigma, map_resolution: int, photons: int) -> float:
+    if isinstance(sigma, str):
+        if sigma != "auto":
+            raise ValueError(f"`sigma` must be a positive number or 'auto', got {sigma!r}")
+        return max(0.5, map_resolution / photons)
+    try:
+        value = float(sigma)
+    except (TypeError, ValueError) as err:
+        raise ValueError(f"`sigma` must be a positive number or 'auto', got {sigma!r}") from err
+    if not (math.isfinite(value) and value > 0):
+        raise ValueError(f"`sigma` must be a positive number or 'auto', got {sigma!r}")
+    return value
+
+
+def _view_and_buffers(scene, gbuffer_resolution: int) -> GeometryBuffers:
+    view = light_view(scene)
+    if not isinstance(view.window, jax.core.Tracer):
+        if not np.all(np.isfinite(np.asarray(view.window))):
+            raise ValueError(
+                "the light must see the whole scene from one side: a point light inside "
+                "or below the receiver/generator's bounding box has no light view"
+            )
+    return _buffers(scene, view, gbuffer_resolution)
+
+
+@eqx.filter_jit
+def _buffers(scene, view, resolution):
+    return geometry_buffers(scene, view, resolution)
+
+
+def _splat(view: LightView, hits, shape, sigma, window) -> Array:
+    """Splat photon hits ``(C, P)`` into a caustic map ``(C, R, R)`` (flux per texel)."""
+    u, v = view.project(hits.position)
+    x, y = view.to_texels(u, v, shape)
+    points = jnp.stack([x, y], axis=-1)
+    return jnp.stack(
+        [
+            splat_gaussian(points[c], hits.flux[c], hits.valid[c], shape, sigma, window)
+            for c in range(points.shape[0])
+        ]
+    )
+
+
+def project_caustic_map(
+    view: LightView, caustic_map: Array, points: Array, normals: Array
+) -> Array:
+    """The final pass: irradiance ``(C, ...)`` at receiver `points` ``(..., 3)`` with unit
+    `normals`, from a caustic map ``(C, R, R)`` (flux per texel), looked up bilinearly at
+    the points' projection in the light's view (no shadow test)."""
+    shape = caustic_map.shape[1:]
+    u, v = view.project(points)
+    x, y = view.to_texels(u, v, shape)
+    per_area = jnp.moveaxis(caustic_map, 0, -1) / view.texel_area(shape)
+    looked_up = bilinear(per_area, x, y)
+    # outside the map: nothing (the window covers the receiver, but not every point)
+    rows, cols = shape
+    inside = (x >= 0) & (x <= cols) & (y >= 0) & (y <= rows)
+    irradiance = (
+        jnp.where(inside[..., None], looked_up, 0.0) * view.area_ratio(points, normals)[..., None]
+    )
+    return jnp.moveaxis(irradiance, -1, 0)
+
+
+def _receiver_image(scene: MeshScene, view: LightView, caustic_map: Array, total_flux: Array):
+    """Project the map onto the receiver's pixel centres; the missed-flux fraction."""
+    receiver = scene.receiver
+    rows, cols = receiver.shape
+    x0, x1, y0, y1 = (receiver.extent[k] for k in range(4))
+    dtype = caustic_map.dtype
+    xs = x0 + (jnp.arange(cols, dtype=dtype) + 0.5) * (x1 - x0) / cols
+    ys = y0 + (jnp.arange(rows, dtype=dtype) + 0.5) * (y1 - y0) / rows
+    gx, gy = jnp.meshgrid(xs, ys)
+    points = jnp.stack([gx, gy, jnp.zeros_like(gx)], axis=-1)
+    normals = jnp.broadcast_to(jnp.array([0.0, 0.0, 1.0], dtype), points.shape)
+    images = project_caustic_map(view, caustic_map, points, normals)
+    dx, dy = receiver.pixel_size
+    landed = images.sum(axis=(1, 2)) * dx * dy
+    ok = total_flux > 0
+    missed = jnp.where(ok, 1.0 - landed / jnp.where(ok, total_flux, 1.0), 0.0)
+    return images, jnp.clip(missed, 0.0, 1.0)
+
+
+def _channels_last(scene: MeshScene, images: Array) -> Array:
+    multi = isinstance(scene.ior, tuple) and scene.material == "refractor"
+    return jnp.moveaxis(images, 0, -1) if multi else images[0]
+
+
+def _photon_grid(view: LightView, photons: int) -> tuple[Array, Array, Array]:
+    """Cell-centred ``photons x photons`` grid over the view: ``u, v`` flat, cell area."""
+    u, v = view.texel_centres((photons, photons))
+    return u.reshape(-1), v.reshape(-1), view.texel_area((photons, photons))
+
+
+@eqx.filter_jit
+def _dense_map(scene, buffers, photons, map_shape, sigma, window, batch, intersection, iterations):
+    view = buffers.view
+    u, v, cell_area = _photon_grid(view, photons)
+
+    def raster(u_, v_, live):
+        hits = shade_photons(
+            scene, buffers, u_, v_, cell_area, intersection=intersection, iterations=iterations
+        )
+        hits = eqx.tree_at(lambda h: h.valid, hits, hits.valid & live[None])
+        flux = jnp.where(hits.valid, hits.flux, 0.0)
+        cmap = _splat(view, hits, map_shape, sigma, window)
+        return cmap, flux.sum(axis=1), hits.valid.any(axis=0).sum()
+
+    live = jnp.ones(u.shape, bool)
+    cmap, total, splatted = sum_in_batches(raster, batch, u, v, live)
+    images, missed = _receiver_image(scene, view, cmap, total)
+    return cmap, images, missed, splatted
+
+
+def caustics_mapping(
+    scene: MeshScene,
+    *,
+    photons: int = 512,
+    map_resolution: int | None = None,
+    sigma: float | Literal["auto"] = "auto",
+    gbuffer_resolution: int | None = None,
+    intersection: Literal["image_space", "exact"] = "image_space",
+    iterations: int = 1,
+    memory_limit: int | None = None,
+) -> CausticMapResult:
+    """Caustics of a mesh scene by Shah et al.'s caustics mapping (dense photon splats).
+
+    **Arguments:**
+
+    - `scene`: a `MeshScene` without occluders.
+    - `photons`: ``N``: the refractive vertex grid, ``N x N`` photons at the cell centres
+      of the light's view (`LightView`: it covers the receiver and the generator).
+    - `map_resolution`: ``R``: the caustic map is ``R x R`` texels over the same view;
+      default twice the receiver's larger side.
+    - `sigma`: the splat's standard deviation in map texels (the splat radius);
+      ``"auto"``: ``max(0.5, R / N)``, about one photon spacing.
+    - `gbuffer_resolution`: texels per side of the geometry buffers (refractor front and
+      back, receiver positions texture); default ``min(N, 1024)`` (Shah et al.: one
+      texel per photon; above 1024 photons are interpolated between texels).
+    - `intersection`: ``"image_space"`` (the paper's estimate: `ray_geo` on the
+      positions textures, two interfaces) or ``"exact"`` (ray tracing through the mesh
+      and onto the plane; `gbuffer_resolution` unused).
+    - `iterations`: steps of the image-space intersection estimate (the paper uses 1).
+    - `memory_limit`: bytes of photon buffer per batch (`photon_bytes` per photon);
+      photons beyond it are shaded and splatted in further batches. Default 1 GiB.
+
+    **Returns:** a `CausticMapResult`. Jit-compiled; differentiable with respect to the
+    generator's vertices (and the light), through the geometry buffers and the photons.
+    """
+    map_resolution, memory_limit = _check_common(
+        scene, map_resolution, sigma, intersection, iterations, memory_limit
+    )
+    photons = _check_int(photons, "photons", 2)
+    sigma = _check_sigma(sigma, map_resolution, photons)
+    if gbuffer_resolution is None:
+        gbuffer_resolution = min(photons, 1024)
+    gbuffer_resolution = _check_int(gbuffer_resolution, "gbuffer_resolution", 2)
+    window = 2 * math.ceil(3.0 * sigma) + 1
+    dtype = scene.generator.vertices.dtype
+    per_photon = photon_bytes(len(scene.iors), window, dtype)
+    batch = max(1, min(photons * photons, memory_limit // per_photon))
+    buffers = _view_and_buffers(scene, gbuffer_resolution)
+    map_shape = (map_resolution, map_resolution)
+    cmap, images, missed, splatted = _dense_map(
+        scene, buffers, photons, map_shape, sigma, window, batch, intersection, iterations
+    )
+    stats = {
+        "generated": photons * photons,
+        "splatted": splatted,
+        "batches": -(-photons * photons // batch),
+        "peak_buffer_photons": batch,
+        "peak_buffer_bytes": batch * per_photon,
+    }
+    if not isinstance(splatted, jax.core.Tracer):
+        stats["splatted"] = int(splatted)
+    return CausticMapResult(_channels_last(scene, images), cmap, buffers.view, missed, stats)
+
+
+class _AdaptiveConfig(eqx.Module):
+    """Static knobs of one adaptive traversal step."""
+
+    base: int = eqx.field(static=True)
+    max_level: int = eqx.field(static=True)
+    check_level: int = eqx.field(static=True)
+    metric: str = eqx.field(static=True)
+    map_shape: tuple[int, int] = eqx.field(static=True)
+    sigma: float = eqx.field(static=True)
+    window: int = eqx.field(static=True)
+    intersection: str = eqx.field(static=True)
+    iterations: int = eqx.field(static=True)
+    discard: str = eqx.field(static=True)
+
+
+_CHILD = np.array([[0, 0], [0, 1], [1, 0], [1, 1]], np.int32)  # (row, col) offsets
+
+
+@eqx.filter_jit
+def _adaptive_step(scene, buffers, cmap, clusters, active, level, cfg: _AdaptiveConfig):
+    """Shade the four photons of each 2 x 2 cluster at `level`, splat the clusters that
+    stop here, and say which to refine. `clusters`: ``(K, 2)`` (row, col) indices in the
+    grid of ``base 2^level / 2`` clusters; `active`: ``(K,)`` (padding is inactive)."""
+    view = buffers.view
+    dtype = cmap.dtype
+    n = cfg.base * 2 ** level.astype(dtype)  # photons per side at this level
+    u0, u1, v0, v1 = (view.window[k] for k in range(4))
+    cell = (u1 - u0) / n
+    index = 2 * clusters[:, None, :] + jnp.asarray(_CHILD)[None]  # (K, 4, 2)
+    u = u0 + (index[..., 1].astype(dtype) + 0.5) * cell
+    v = v0 + (index[..., 0].astype(dtype) + 0.5) * (v1 - v0) / n
+    hits = shade_photons(
+        scene,
+        buffers,
+        u.reshape(-1),
+        v.reshape(-1),
+        cell * (v1 - v0) / n,
+        intersection=cfg.intersection,
+        iterations=cfg.iterations,
+    )
+    channels, count = hits.valid.shape[0], clusters.shape[0]
+    valid = hits.valid.reshape(channels, count, 4) & active[None, :, None]
+    flux = jnp.where(valid, hits.flux.reshape(channels, count, 4), 0.0)
+    position = hits.position.reshape(channels, count, 4, 3)
+    any_valid = valid.any(axis=(0, 2))
+    if cfg.discard == "footprint":
+        any_valid = any_valid | _touches_generator(buffers, clusters, n)
+    at_max = level >= cfg.max_level
+    if cfg.metric == "error":
+        pu, pv = view.project(position)
+        x, y = view.to_texels(pu, pv, cfg.map_shape)
+        tx, ty = jnp.floor(x), jnp.floor(y)
+        one_texel = (tx == tx[..., :1]).all(-1) & (ty == ty[..., :1]).all(-1)
+        converged = (valid.all(-1) & one_texel).all(0) & (level >= cfg.check_level)
+    else:
+        converged = jnp.zeros_like(any_valid)
+    merged = active & converged
+    each = active & any_valid & at_max & ~converged
+    refine = active & any_valid & ~at_max & ~converged
+    # the photons that go out: each valid one of a finished cluster, and one per merged
+    # cluster at the mean of its landing points, carrying the cluster's flux
+    each_valid = valid & each[None, :, None]
+    out_position = jnp.concatenate([position, position.mean(axis=2, keepdims=True)], axis=2)
+    out_flux = jnp.concatenate(
+        [jnp.where(each_valid, flux, 0.0), flux.sum(axis=2, keepdims=True)], axis=2
+    )
+    out_valid = jnp.concatenate(
+        [each_valid, jnp.broadcast_to(merged[None, :, None], (channels, count, 1))], axis=2
+    )
+    out = type(hits)(
+        out_position.reshape(channels, -1, 3),
+        jnp.where(out_valid, out_flux, 0.0).reshape(channels, -1),
+        out_valid.reshape(channels, -1),
+    )
+    cmap = cmap + _splat(view, out, cfg.map_shape, cfg.sigma, cfg.window)
+    splatted = each_valid.any(axis=0).sum() + merged.sum()
+    return cmap, out.flux.sum(axis=1), refine, active.sum() * 4, splatted
+
+
+def _touches_generator(buffers: GeometryBuffers, clusters: Array, n: Array) -> Array:
+    """Whether the geometry buffers see the generator anywhere in each cluster's
+    footprint (``2 x 2`` cells of an ``n x n`` grid), grown by one texel (the reach of
+    the bilinear lookup): a summed-area table of the hit mask, four taps per cluster."""
+    rows, cols = buffers.shape
+    table = jnp.cumsum(jnp.cumsum(buffers.hit.astype(jnp.int32), axis=0), axis=1)
+    table = jnp.pad(table, ((1, 0), (1, 0)))
+    per_cell = jnp.array([rows, cols], n.dtype) / n
+    low = jnp.floor(2 * clusters * per_cell).astype(jnp.int32) - 1
+    high = jnp.ceil((2 * clusters + 2) * per_cell).astype(jnp.int32) + 1
+    r0, c0 = jnp.clip(low[:, 0], 0, rows), jnp.clip(low[:, 1], 0, cols)
+    r1, c1 = jnp.clip(high[:, 0], 0, rows), jnp.clip(high[:, 1], 0, cols)
+    count = table[r1, c1] - table[r0, c1] - table[r1, c0] + table[r0, c0]
+    return count > 0
+
+
+def _bucket(count: int, cap: int) -> int:
+    """Static buffer size for `count` clusters: the next power of two (at least 64), at
+    most `cap` (fewer distinct sizes, fewer compilations)."""
+    return min(cap, max(64, 1 << max(0, count - 1).bit_length()))
+
+
+def adaptive_caustic_map(
+    scene: MeshScene,
+    *,
+    photons: int = 2048,
+    base: int = 64,
+    metric: Literal["traversal", "error"] = "traversal",
+    check_from: int = 512,
+    map_resolution: int | None = None,
+    sigma: float | Literal["auto"] = "auto",
+    gbuffer_resolution: int | None = None,
+    intersection: Literal["image_space", "exact"] = "image_space",
+    iterations: int = 1,
+    memory_limit: int | None = None,
+    discard: Literal["footprint", "samples"] = "footprint",
+) -> CausticMapResult:
+    """Caustics of a mesh scene by Wyman & Nichols' adaptive caustic maps.
+
+    Photons start on a ``base x base`` grid over the light's view and are grouped in
+    2 x 2 clusters. A cluster whose photons all miss the generator is discarded; the
+    others are refined (each photon becomes a cluster of four on the grid twice as fine)
+    until a stopping metric says stop:
+
+    - ``"traversal"`` (maximal traversal level): at the level of the equivalent dense
+      grid, ``photons x photons``, all photons of the cluster are splatted.
+    - ``"error"`` (maximal caustic-map error): from the level of a ``check_from`` grid
+      on, a cluster whose four photons all land in one texel of the caustic map is
+      splatted as one photon carrying their flux; the rest go on down to the traversal
+      level, where they are all splatted.
+
+    The traversal runs level by level (breadth first) in fixed-size buffers (masks and
+    compaction, one jit-compiled kernel per buffer size); when a level's photons would
+    take more than `memory_limit` bytes (`photon_bytes` each), its clusters are split
+    into batches, each refined and splatted to the end before the next (depth first).
+
+    **Arguments** (see `caustics_mapping` for the shared ones):
+
+    - `photons`: the equivalent dense grid; ``photons / base`` must be a power of two.
+    - `base`: the coarse grid (the paper's 64), even.
+    - `metric`, `check_from`: as above (the paper checks convergence from 512^2 on).
+    - `discard`: when a cluster "misses the refractor": ``"samples"`` (the paper's test:
+      its four photons all miss; a sliver of the object between coarse photons is lost
+      for good) or ``"footprint"`` (also none of the geometry-buffer texels under the
+      cluster's area sees the object: nothing is lost that the dense grid would find).
+    - `gbuffer_resolution`: default ``R / 4`` (the paper samples the geometry buffers at
+      a quarter of the caustic map's resolution), at least 64.
+
+    **Returns:** a `CausticMapResult` with per-level counts in `stats`. Differentiable
+    with respect to the scene through the photons' landing points (the traversal's
+    choices are piecewise constant); the traversal needs concrete values, so call it
+    outside `jax.jit` (``jax.grad`` works).
+    """
+    map_resolution, memory_limit = _check_common(
+        scene, map_resolution, sigma, intersection, iterations, memory_limit
+    )
+    photons = _check_int(photons, "photons", 2)
+    base = _check_int(base, "base", 2)
+    if base % 2:
+        raise ValueError(f"`base` must be even (2 x 2 clusters), got {base}")
+    ratio = photons // base
+    if photons % base or ratio & (ratio - 1):
+        raise ValueError(
+            f"`photons` must be `base` times a power of two, got photons={photons}, base={base}"
+        )
+    if metric not in METRICS:
+        raise ValueError(f"`metric` must be one of {METRICS}, got {metric!r}")
+    if discard not in ("footprint", "samples"):
+        raise ValueError(f"`discard` must be 'footprint' or 'samples', got {discard!r}")
+    check_from = _check_int(check_from, "check_from", 1)
+    sigma = _check_sigma(sigma, map_resolution, photons)
+    if gbuffer_resolution is None:
+        gbuffer_resolution = max(64, map_resolution // 4)
+    gbuffer_resolution = _check_int(gbuffer_resolution, "gbuffer_resolution", 2)
+    if isinstance(scene.generator.vertices, jax.core.Tracer):
+        raise ValueError(
+            "adaptive_caustic_map traverses its photon tree on the host: call it outside "
+            "jax.jit (jax.grad works); caustics_mapping is jit-compatible"
+        )
+    max_level = ratio.bit_length() - 1
+    check_level = max(0, math.ceil(math.log2(max(check_from, base) / base)))
+    window = 2 * math.ceil(3.0 * sigma) + 1
+    channels = len(scene.iors)
+    dtype = scene.generator.vertices.dtype
+    per_photon = photon_bytes(channels, window, dtype)
+    cap = max(1, memory_limit // (4 * per_photon))  # clusters per batch
+    cfg = _AdaptiveConfig(
+        base,
+        max_level,
+        check_level,
+        metric,
+        (map_resolution,) * 2,
+        sigma,
+        window,
+        intersection,
+        iterations,
+        discard,
+    )
+    buffers = _view_and_buffers(scene, gbuffer_resolution)
+    cmap = jnp.zeros((channels, map_resolution, map_resolution), dtype)
+    total = jnp.zeros((channels,), dtype)
+    levels = max_level + 1
+    stats = {
+        "generated_per_level": [0] * levels,
+        "splatted_per_level": [0] * levels,
+        "refined_per_level": [0] * levels,
+        "batches": 0,
+        "peak_buffer_photons": 0,
+    }
+    half = base // 2
+    rows, cols = np.meshgrid(np.arange(half), np.arange(half), indexing="ij")
+    start = np.stack([rows.ravel(), cols.ravel()], axis=1).astype(np.int32)
+    stack = [(0, start[k : k + cap]) for k in range(0, len(start), cap)][::-1]
+    while stack:
+        level, chunk = stack.pop()
+        size = _bucket(len(chunk), cap)
+        clusters = np.zeros((size, 2), np.int32)
+        clusters[: len(chunk)] = chunk
+        active = np.arange(size) < len(chunk)
+        cmap, flux, refine, generated, splatted = _adaptive_step(
+            scene,
+            buffers,
+            cmap,
+            jnp.asarray(clusters),
+            jnp.asarray(active),
+            jnp.asarray(level, jnp.int32),
+            cfg,
+        )
+        total = total + flux
+        refine = np.asarray(refine)[: len(chunk)]
+        stats["generated_per_level"][level] += int(generated)
+        stats["splatted_per_level"][level] += int(splatted)
+        stats["refined_per_level"][level] += int(refine.sum())
+        stats["batches"] += 1
+        stats["peak_buffer_photons"] = max(stats["peak_buffer_photons"], 4 * size)
+        kept = chunk[refine]
+        if len(kept):
+            children = (2 * kept[:, None, :] + _CHILD[None]).reshape(-1, 2)
+            parts = [children[k : k + cap] for k in range(0, len(children), cap)]
+            stack.extend((level + 1, part) for part in parts[::-1])
+    images, missed = _receiver_image(scene, buffers.view, cmap, total)
+    stats["generated"] = sum(stats["generated_per_level"])
+    stats["splatted"] = sum(stats["splatted_per_level"])
+    stats["peak_buffer_bytes"] = stats["peak_buffer_photons"] * per_photon
+    return CausticMapResult(_channels_last(scene, images), cmap, buffers.view, missed, stats)
