@@ -1,5 +1,9 @@
 """jaxcaustics: differentiable, jit-compiled caustics in JAX.
 
+Methods: `two_pass` (Yuksel & Keyser, water), `caustic_triangles` (Umenhoffer et al.,
+lens and mesh scenes), `caustics_mapping` (Shah et al.'s splatted caustic maps) and
+`adaptive_caustic_map` (Wyman & Nichols), all reachable through `render`.
+
 Build a scene (`WaterScene`: a `HeightField` water surface; `LensScene`: a glass slab
 with a height-field top; `MeshScene`: a glass or mirror `Mesh` with optional occluders;
 each with a `DirectionalLight` or `PointLight` and a `PlaneReceiver`), then `render` it.
@@ -27,6 +31,15 @@ from ._export import (
 )
 from ._export import (
     manufacturability as manufacturability,
+)
+from ._gbuffer import (
+    GeometryBuffers as GeometryBuffers,
+)
+from ._gbuffer import (
+    geometry_buffers as geometry_buffers,
+)
+from ._gbuffer import (
+    ray_geo as ray_geo,
 )
 from ._inverse.design import (
     LensDesign as LensDesign,
@@ -67,11 +80,32 @@ from ._io import (
 from ._io import (
     write_png_linear16 as write_png_linear16,
 )
+from ._light_view import (
+    LightView as LightView,
+)
+from ._light_view import (
+    light_view as light_view,
+)
 from ._mesh import (
     Mesh as Mesh,
 )
 from ._mesh import (
     MeshScene as MeshScene,
+)
+from ._methods.caustic_map import (
+    CausticMapResult as CausticMapResult,
+)
+from ._methods.caustic_map import (
+    adaptive_caustic_map as adaptive_caustic_map,
+)
+from ._methods.caustic_map import (
+    caustics_mapping as caustics_mapping,
+)
+from ._methods.caustic_map import (
+    photon_bytes as photon_bytes,
+)
+from ._methods.caustic_map import (
+    project_caustic_map as project_caustic_map,
 )
 from ._methods.triangles import (
     CubeMapOptions as CubeMapOptions,

@@ -23,9 +23,10 @@ from __future__ import annotations
 import equinox as eqx
 import jax
 import jax.numpy as jnp
+import numpy as np
 from jaxtyping import Array, Bool, Float
 
-from ._intersect import face_normals, hit_on_triangle, nearest_hits, vertex_normals
+from ._intersect import face_normals, hit_on_triangle, moller_trumbore, vertex_normals
 from ._light_view import LightView
 from ._mesh import MeshScene
 from ._optics import fresnel_transmittance, reflect, refract_components
@@ -58,14 +59,12 @@ class GeometryBuffers(eqx.Module):
         return tuple(self.hit.shape)  # type: ignore[return-value]
 
 
-def _surface_hits(scene: MeshScene, origins, directions, batch_size):
-    """First hit of rays on the generator: points, outward unit shading normals, found."""
+def _surface_hits(scene: MeshScene, origins, directions, face, found):
+    """Differentiable hits of rays on the generator's faces `face` (chosen already):
+    points and outward unit shading normals."""
     verts = scene.generator.vertices
     faces = scene.generator.faces
-    triangles = verts[faces]
-    t_near, face = nearest_hits(origins, directions, triangles, 0.0, batch_size)
-    found = jnp.isfinite(t_near)
-    t, bary = hit_on_triangle(origins, directions, triangles[face])
+    t, bary = hit_on_triangle(origins, directions, verts[faces][face])
     t = jnp.where(found, t, 0.0)
     points = origins + t[:, None] * directions
     if scene.normals == "smooth":
@@ -73,28 +72,80 @@ def _surface_hits(scene: MeshScene, origins, directions, batch_size):
         normals = jnp.einsum("pk,pkc->pc", bary, vn[faces[face]])
     else:
         normals = face_normals(verts, faces)[face]
-    normals = normals / jnp.linalg.norm(normals, axis=-1, keepdims=True)
-    return points, normals, found
+    return points, _unit(normals)
+
+
+def raster_window(scene: MeshScene, view: LightView, resolution: int) -> int:
+    """The rasteriser's window for the geometry buffers: texels per side of the largest
+    face's footprint in the light's view (needs concrete vertices)."""
+    tri = np.asarray(scene.generator.vertices)[np.asarray(scene.generator.faces)]
+    u, v = view.project(jnp.asarray(tri))
+    x, y = view.to_texels(u, v, (resolution, resolution))
+    x, y = np.asarray(x), np.asarray(y)
+    span = max(
+        np.max(np.ceil(x.max(1)) - np.floor(x.min(1))),
+        np.max(np.ceil(y.max(1)) - np.floor(y.min(1))),
+    )
+    return int(min(resolution, span + 2))
+
+
+def _raster_faces(scene: MeshScene, view: LightView, resolution: int, window: int):
+    """Rasterise the generator's faces into the light's view (no derivatives): for each
+    texel, the face its ray meets first and the face it meets last (``-1``: none).
+    Each face tests the texel centres of a ``window x window`` block from its
+    footprint's corner with the exact ray/triangle test, then a depth test (scatter-min
+    of the ray parameter) keeps the nearest, a scatter-max the farthest."""
+    sg = jax.lax.stop_gradient
+    tri = sg(scene.generator.vertices)[scene.generator.faces]  # (F, 3, 3)
+    shape = (resolution, resolution)
+    u, v = view.project(tri)
+    x, y = view.to_texels(u, v, shape)
+    col0 = jnp.floor(x.min(axis=1)).astype(jnp.int32)
+    row0 = jnp.floor(y.min(axis=1)).astype(jnp.int32)
+    offsets = jnp.arange(window, dtype=jnp.int32)
+    cols = col0[:, None, None] + offsets[None, None, :]  # (F, 1, W)
+    rows = row0[:, None, None] + offsets[None, :, None]  # (F, W, 1)
+    cols, rows = jnp.broadcast_arrays(cols, rows)
+    inside = (cols >= 0) & (cols < resolution) & (rows >= 0) & (rows < resolution)
+    du = (view.window[1] - view.window[0]) / resolution
+    dv = (view.window[3] - view.window[2]) / resolution
+    tu = view.window[0] + (cols + 0.5) * du
+    tv = view.window[2] + (rows + 0.5) * dv
+    origins, directions = view.rays(tu, tv)
+    t, b1, b2, det = moller_trumbore(
+        origins, directions, tri[:, None, None, 0], tri[:, None, None, 1], tri[:, None, None, 2]
+    )
+    hit = inside & (det != 0) & (b1 >= 0) & (b2 >= 0) & (b1 + b2 <= 1) & (t > 0)
+    texel = jnp.where(hit, rows * resolution + cols, resolution * resolution).ravel()
+    face = jnp.broadcast_to(jnp.arange(tri.shape[0], dtype=jnp.int32)[:, None, None], t.shape)
+    face = face.ravel()
+    t = t.ravel()
+    size = resolution * resolution
+    nearest = jnp.full(size, jnp.inf, t.dtype).at[texel].min(t, mode="drop")
+    farthest = jnp.full(size, -jnp.inf, t.dtype).at[texel].max(t, mode="drop")
+    keep_near = jnp.where(t == nearest.at[texel].get(mode="fill", fill_value=jnp.nan), face, -1)
+    keep_far = jnp.where(t == farthest.at[texel].get(mode="fill", fill_value=jnp.nan), face, -1)
+    first = jnp.full(size, -1, jnp.int32).at[texel].max(keep_near, mode="drop")
+    last = jnp.full(size, -1, jnp.int32).at[texel].max(keep_far, mode="drop")
+    return first, last
 
 
 def geometry_buffers(
-    scene: MeshScene, view: LightView, resolution: int, batch_size: int = 4096
+    scene: MeshScene, view: LightView, resolution: int, window: int
 ) -> GeometryBuffers:
-    """Render the geometry buffers of `scene` from the light at ``resolution^2`` texels."""
+    """Render the geometry buffers of `scene` from the light at ``resolution^2`` texels
+    (`window`: see `raster_window`). Differentiable with respect to the vertices (the
+    rasteriser picks the faces; the hits on them are recomputed from the vertices)."""
     shape = (resolution, resolution)
     u, v = view.texel_centres(shape)
     origins, directions = view.rays(u.reshape(-1), v.reshape(-1))
     origins = origins.astype(scene.generator.vertices.dtype)
-    front, front_n, hit = _surface_hits(scene, origins, directions, batch_size)
+    first, last = _raster_faces(scene, view, resolution, window)
+    hit = first >= 0
+    front, front_n = _surface_hits(scene, origins, directions, jnp.maximum(first, 0), hit)
     back = back_n = None
     if scene.material == "refractor":
-        # the last surface along each ray: the first one met coming back from beyond
-        verts = jax.lax.stop_gradient(scene.generator.vertices)
-        far = jnp.max(jnp.linalg.norm(verts[None, :, :] - origins[:1, None, :], axis=-1))
-        if not view.perspective:
-            far = jnp.max(jnp.abs((verts - view.centre) @ view.axis)) + view.start
-        beyond = origins + 2.0 * far * directions
-        back, back_n, _ = _surface_hits(scene, beyond, -directions, batch_size)
+        back, back_n = _surface_hits(scene, origins, directions, jnp.maximum(last, 0), hit)
         back = back.reshape(shape + (3,))
         back_n = back_n.reshape(shape + (3,))
     down = directions[:, 2] < 0
@@ -142,7 +193,10 @@ def bilinear(texture: Array, x: Array, y: Array, mask: Array | None = None):
     weights = [jnp.where(mask[r, c], w, 0.0) for r, c, w in taps]
     coverage = sum(weights)
     safe = jnp.where(coverage > 0, coverage, 1.0)
-    value = sum((w / safe)[(...,) + extra] * texture[r, c] for (r, c, _), w in zip(taps, weights))
+    value = sum(
+        (w / safe)[(...,) + extra] * texture[r, c]
+        for (r, c, _), w in zip(taps, weights, strict=True)
+    )
     return value, coverage
 
 

@@ -6,11 +6,17 @@ from typing import Any
 
 from jaxtyping import Array
 
+from ._methods.caustic_map import adaptive_caustic_map, caustics_mapping
 from ._methods.triangles import caustic_triangles
 from ._methods.twopass import two_pass
 from ._scene import WaterScene
 
-METHODS = {"twopass": two_pass, "triangles": caustic_triangles}
+METHODS = {
+    "twopass": two_pass,
+    "triangles": caustic_triangles,
+    "caustics_mapping": caustics_mapping,
+    "adaptive": adaptive_caustic_map,
+}
 # the method each scene type gets when none is named
 DEFAULT_METHOD = {"WaterScene": "twopass", "LensScene": "triangles", "MeshScene": "triangles"}
 
@@ -23,12 +29,15 @@ def render(
     **Arguments:**
 
     - `scene`: a `WaterScene`, `LensScene` or `MeshScene`.
-    - `method`: ``"twopass"`` (Yuksel & Keyser; water) or ``"triangles"`` (Umenhoffer et
-      al.'s caustic triangles; lens and mesh scenes). Default: the scene's natural method
+    - `method`: ``"twopass"`` (Yuksel & Keyser; water), ``"triangles"`` (Umenhoffer et
+      al.'s caustic triangles; lens and mesh scenes), ``"caustics_mapping"`` (Shah et
+      al.'s splatted caustic map; mesh scenes) or ``"adaptive"`` (Wyman & Nichols'
+      adaptive caustic map; mesh scenes). Default: the scene's natural method
       (``"twopass"`` for water, ``"triangles"`` otherwise).
     - `return_stats`: also return a dict of diagnostics (``missed_flux_fraction`` per
       channel).
-    - `**knobs`: the method's quality knobs (see `two_pass` and `caustic_triangles`).
+    - `**knobs`: the method's quality knobs (see `two_pass`, `caustic_triangles`,
+      `caustics_mapping`, `adaptive_caustic_map`).
 
     **Returns:** the irradiance image, relative to the irradiance the light gives a
     horizontal plane: ``(rows, cols)`` for a single index of refraction, ``(rows, cols,
@@ -41,5 +50,6 @@ def render(
     result = METHODS[method](scene, **knobs)
     if return_stats:
         stats: dict[str, Array] = {"missed_flux_fraction": result.missed_flux_fraction}
+        stats.update(getattr(result, "stats", {}))
         return result.image, stats
     return result.image

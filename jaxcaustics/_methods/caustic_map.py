@@ -36,7 +36,14 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array
 
-from .._gbuffer import INTERSECTIONS, GeometryBuffers, bilinear, geometry_buffers, shade_photons
+from .._gbuffer import (
+    INTERSECTIONS,
+    GeometryBuffers,
+    bilinear,
+    geometry_buffers,
+    raster_window,
+    shade_photons,
+)
 from .._light_view import LightView, light_view
 from .._mesh import MeshScene
 from .._raster import splat_gaussian, sum_in_batches
@@ -127,12 +134,16 @@ def _view_and_buffers(scene, gbuffer_resolution: int) -> GeometryBuffers:
                 "the light must see the whole scene from one side: a point light inside "
                 "or below the receiver/generator's bounding box has no light view"
             )
-    return _buffers(scene, view, gbuffer_resolution)
+    if isinstance(scene.generator.vertices, jax.core.Tracer):
+        window = gbuffer_resolution  # every face may cover the whole view
+    else:
+        window = raster_window(scene, view, gbuffer_resolution)
+    return _buffers(scene, view, gbuffer_resolution, window)
 
 
 @eqx.filter_jit
-def _buffers(scene, view, resolution):
-    return geometry_buffers(scene, view, resolution)
+def _buffers(scene, view, resolution, window):
+    return geometry_buffers(scene, view, resolution, window)
 
 
 def _splat(view: LightView, hits, shape, sigma, window) -> Array:
