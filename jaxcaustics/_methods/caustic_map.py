@@ -180,17 +180,22 @@ def project_caustic_map(
 
 
 def _receiver_image(scene: MeshScene, view: LightView, caustic_map: Array, total_flux: Array):
-    """Project the map onto the receiver's pixel centres; the missed-flux fraction."""
+    """Project the map onto the receiver: each pixel averages ``S x S`` lookups at its
+    sub-pixel centres, ``S`` the map's texels per pixel (rounded up), so that a caustic
+    finer than a pixel is integrated over it rather than point-sampled (the reference
+    bins flux per pixel). Also the missed-flux fraction."""
     receiver = scene.receiver
     rows, cols = receiver.shape
+    s = max(1, -(-caustic_map.shape[1] // max(rows, cols)))
     x0, x1, y0, y1 = (receiver.extent[k] for k in range(4))
     dtype = caustic_map.dtype
-    xs = x0 + (jnp.arange(cols, dtype=dtype) + 0.5) * (x1 - x0) / cols
-    ys = y0 + (jnp.arange(rows, dtype=dtype) + 0.5) * (y1 - y0) / rows
+    xs = x0 + (jnp.arange(cols * s, dtype=dtype) + 0.5) * (x1 - x0) / (cols * s)
+    ys = y0 + (jnp.arange(rows * s, dtype=dtype) + 0.5) * (y1 - y0) / (rows * s)
     gx, gy = jnp.meshgrid(xs, ys)
     points = jnp.stack([gx, gy, jnp.zeros_like(gx)], axis=-1)
     normals = jnp.broadcast_to(jnp.array([0.0, 0.0, 1.0], dtype), points.shape)
-    images = project_caustic_map(view, caustic_map, points, normals)
+    fine = project_caustic_map(view, caustic_map, points, normals)
+    images = fine.reshape(-1, rows, s, cols, s).mean(axis=(2, 4))
     dx, dy = receiver.pixel_size
     landed = images.sum(axis=(1, 2)) * dx * dy
     ok = total_flux > 0
@@ -466,11 +471,6 @@ def adaptive_caustic_map(
     if gbuffer_resolution is None:
         gbuffer_resolution = max(64, map_resolution // 4)
     gbuffer_resolution = _check_int(gbuffer_resolution, "gbuffer_resolution", 2)
-    if isinstance(scene.generator.vertices, jax.core.Tracer):
-        raise ValueError(
-            "adaptive_caustic_map traverses its photon tree on the host: call it outside "
-            "jax.jit (jax.grad works); caustics_mapping is jit-compatible"
-        )
     max_level = ratio.bit_length() - 1
     check_level = max(0, math.ceil(math.log2(max(check_from, base) / base)))
     window = 2 * math.ceil(3.0 * sigma) + 1
@@ -521,6 +521,11 @@ def adaptive_caustic_map(
             cfg,
         )
         total = total + flux
+        if isinstance(refine, jax.core.Tracer):  # under jit: no concrete choices
+            raise ValueError(
+                "adaptive_caustic_map traverses its photon tree on the host: call it "
+                "outside jax.jit (jax.grad works); caustics_mapping is jit-compatible"
+            )
         refine = np.asarray(refine)[: len(chunk)]
         stats["generated_per_level"][level] += int(generated)
         stats["splatted_per_level"][level] += int(splatted)
