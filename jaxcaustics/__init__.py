@@ -96,7 +96,13 @@ from ._methods.caustic_map import (
     CausticMapResult as CausticMapResult,
 )
 from ._methods.caustic_map import (
+    PinholeCamera as PinholeCamera,
+)
+from ._methods.caustic_map import (
     adaptive_caustic_map as adaptive_caustic_map,
+)
+from ._methods.caustic_map import (
+    camera_image as camera_image,
 )
 from ._methods.caustic_map import (
     caustics_mapping as caustics_mapping,

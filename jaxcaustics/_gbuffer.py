@@ -329,7 +329,7 @@ def intersection_errors(
     percentile, receiver median, receiver 90th percentile)}``, distances in metres
     (needs concrete values). Near the silhouette the update contracts slowly (the
     refracted ray runs almost along the back surface in the light's view), so the 90th
-    percentile lags far behind the median.""" 
+    percentile lags far behind the median."""
     from ._intersect import nearest_hits
 
     view = buffers.view
@@ -356,9 +356,10 @@ def intersection_errors(
         out = jnp.stack(out, -1)
         landed = ray_geo(view, buffers.receiver_position, exit_point, out, k)
         down = np.asarray((out[:, 2] < 0) & ~tir)
-        plane = exit_point - (exit_point[:, 2] / jnp.where(out[:, 2] < 0, out[:, 2], -1.0))[
-            :, None
-        ] * out
+        plane = (
+            exit_point
+            - (exit_point[:, 2] / jnp.where(out[:, 2] < 0, out[:, 2], -1.0))[:, None] * out
+        )
         back_error = np.linalg.norm(np.asarray(exit_point - exit_exact), axis=-1)[found]
         receiver_error = np.linalg.norm(np.asarray(landed - plane), axis=-1)[down]
         result[k] = tuple(

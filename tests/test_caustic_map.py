@@ -62,9 +62,7 @@ def test_splatted_maps_converge_to_the_reference(ball, ball_reference):
     0.19, 0.090, 0.034 for 64, 128, 256 photons per side of the light's view."""
     errors = [
         rel_l1(
-            jc.caustics_mapping(
-                ball, photons=n, map_resolution=128, intersection="exact"
-            ).image,
+            jc.caustics_mapping(ball, photons=n, map_resolution=128, intersection="exact").image,
             ball_reference,
         )
         for n in (64, 128, 256)
@@ -169,14 +167,21 @@ def test_hard_cases_stay_finite(case, dtype):
     else:
         scene = ball_scene(0.0, shape=(16, 16), dtype=dtype)
         scene = jc.MeshScene(
-            _tilted_cube(dtype), scene.light, scene.receiver, ior=1.5, normals="flat",
+            _tilted_cube(dtype),
+            scene.light,
+            scene.receiver,
+            ior=1.5,
+            normals="flat",
             interfaces=6,
         )
 
     def loss(vertices, method):
         s = jc.MeshScene(
-            jc.Mesh(vertices, scene.generator.faces), scene.light, scene.receiver,
-            ior=1.5, normals=scene.normals,
+            jc.Mesh(vertices, scene.generator.faces),
+            scene.light,
+            scene.receiver,
+            ior=1.5,
+            normals=scene.normals,
         )
         knobs = dict(photons=128, map_resolution=32, gbuffer_resolution=64)
         return jnp.sum(method(s, **knobs).image ** 2)
@@ -197,7 +202,11 @@ def test_image_space_refraction_drops_totally_reflected_photons():
     are dropped, not sent somewhere wrong."""
     base = ball_scene(0.0, shape=(16, 16))
     scene = jc.MeshScene(
-        _tilted_cube(np.float64), base.light, base.receiver, ior=1.5, normals="flat",
+        _tilted_cube(np.float64),
+        base.light,
+        base.receiver,
+        ior=1.5,
+        normals="flat",
         interfaces=6,
     )
     r = jc.caustics_mapping(scene, photons=128, map_resolution=32)
@@ -237,9 +246,7 @@ def test_caustics_mapping_is_jit_compatible(ball):
 
 
 def test_render_dispatches_to_the_caustic_maps(ball):
-    image, stats = jc.render(
-        ball, "adaptive", photons=128, map_resolution=64, return_stats=True
-    )
+    image, stats = jc.render(ball, "adaptive", photons=128, map_resolution=64, return_stats=True)
     assert image.shape == (32, 32) and stats["generated"] > 0
     assert jc.render(ball, "caustics_mapping", photons=64, map_resolution=64).shape == (32, 32)
 
@@ -278,3 +285,19 @@ def test_bad_arguments_raise_clear_errors(ball):
     ]:
         with pytest.raises(ValueError, match=name):
             jc.adaptive_caustic_map(ball, **kwargs)
+
+
+def test_camera_image_shades_the_receiver(ball):
+    """Seen from a camera straight above, the lit receiver far from the ball has the
+    Lambertian radiance ``albedo / pi`` of unit irradiance; the ball's shadow is darker
+    except where its caustic lands; off the receiver the image is black."""
+    result = jc.caustics_mapping(ball, photons=128, map_resolution=64)
+    camera = jc.PinholeCamera([0.0, 0.0, 8.0], [0.0, 0.0, 0.0], fov=40.0, shape=(60, 60))
+    image = np.asarray(jc.camera_image(ball, result, camera, albedo=0.5))
+    assert image[0, 0] == 0.0  # the corner ray misses the 4 m screen
+    lit = image[30, 12]  # 1.7 m from the axis: no shadow, no caustic
+    np.testing.assert_allclose(lit, 0.5 / np.pi, rtol=1e-6)
+    assert image.max() > 3 * lit  # the caustic
+    assert np.sum(image < 0.5 * lit) > 20  # the shadow ring around it
+    with pytest.raises(ValueError, match="look_at"):
+        jc.PinholeCamera([0.0, 0.0, 1.0], [0.0, 0.0, 1.0])

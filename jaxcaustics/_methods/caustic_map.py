@@ -58,6 +58,8 @@ class CausticMapResult(eqx.Module):
     - `image`: irradiance on the receiver, ``(rows, cols)`` or ``(rows, cols, channels)``.
     - `caustic_map`: flux per texel in the light's view, ``(channels, R, R)``.
     - `view`: the `LightView` the map is in.
+    - `shadow_map`: ``(G, G)`` bool, the geometry buffers' hit mask: where the light's
+      view sees the generator (what a shadow map holds; `camera_image` uses it).
     - `missed_flux_fraction`: ``(channels,)``: the fraction of the splatted flux that is
       not in the image (it landed off the receiver).
     - `stats`: dict of counts (Python ints): ``generated`` (photons shaded, all levels),
@@ -71,6 +73,7 @@ class CausticMapResult(eqx.Module):
     image: Array
     caustic_map: Array
     view: LightView
+    shadow_map: Array
     missed_flux_fraction: Array
     stats: dict
 
@@ -295,7 +298,9 @@ def caustics_mapping(
     }
     if not isinstance(splatted, jax.core.Tracer):
         stats["splatted"] = int(splatted)
-    return CausticMapResult(_channels_last(scene, images), cmap, buffers.view, missed, stats)
+    return CausticMapResult(
+        _channels_last(scene, images), cmap, buffers.view, buffers.hit, missed, stats
+    )
 
 
 class _AdaptiveConfig(eqx.Module):
@@ -541,4 +546,87 @@ def adaptive_caustic_map(
     stats["generated"] = sum(stats["generated_per_level"])
     stats["splatted"] = sum(stats["splatted_per_level"])
     stats["peak_buffer_bytes"] = stats["peak_buffer_photons"] * per_photon
-    return CausticMapResult(_channels_last(scene, images), cmap, buffers.view, missed, stats)
+    return CausticMapResult(
+        _channels_last(scene, images), cmap, buffers.view, buffers.hit, missed, stats
+    )
+
+
+class PinholeCamera(eqx.Module):
+    """A pinhole camera for `camera_image`.
+
+    - `position`, `look_at`: ``(3,)`` metres; `up`: ``(3,)``, the image's upward
+      direction (default ``+y``; any vector not along the view).
+    - `fov`: vertical field of view, degrees (static).
+    - `shape`: ``(rows, cols)`` of the image (static).
+    """
+
+    position: Array
+    look_at: Array
+    up: Array
+    fov: float = eqx.field(static=True)
+    shape: tuple[int, int] = eqx.field(static=True)
+
+    def __init__(self, position, look_at, *, fov: float = 45.0, shape=(240, 320), up=(0, 1, 0)):
+        self.position = jnp.asarray(position, float)
+        self.look_at = jnp.asarray(look_at, float)
+        self.up = jnp.asarray(up, float)
+        for name, value in (("position", self.position), ("look_at", self.look_at)):
+            if value.shape != (3,) or not np.all(np.isfinite(np.asarray(value))):
+                raise ValueError(f"`{name}` must be 3 finite numbers, got {value}")
+        if not 0 < float(fov) < 180:
+            raise ValueError(f"`fov` must be in (0, 180) degrees, got {fov!r}")
+        rows, cols = (int(k) for k in shape)
+        if rows < 1 or cols < 1:
+            raise ValueError(f"`shape` must be two positive ints, got {shape!r}")
+        forward = self.look_at - self.position
+        if float(jnp.linalg.norm(jnp.cross(forward, self.up))) <= 1e-9 * float(
+            jnp.linalg.norm(forward) + 1e-300
+        ):
+            raise ValueError("`look_at` must differ from `position`, and `up` not be along it")
+        self.fov = float(fov)
+        self.shape = (rows, cols)
+
+    def rays(self) -> tuple[Array, Array]:
+        """Unit directions ``(rows, cols, 3)`` through the pixel centres."""
+        rows, cols = self.shape
+        forward = self.look_at - self.position
+        forward = forward / jnp.linalg.norm(forward)
+        right = jnp.cross(forward, self.up)
+        right = right / jnp.linalg.norm(right)
+        up = jnp.cross(right, forward)
+        half = math.tan(math.radians(self.fov) / 2)
+        y = (1 - 2 * (jnp.arange(rows) + 0.5) / rows) * half
+        x = (2 * (jnp.arange(cols) + 0.5) / cols - 1) * half * cols / rows
+        d = forward + x[None, :, None] * right + y[:, None, None] * up
+        return self.position, d / jnp.linalg.norm(d, axis=-1, keepdims=True)
+
+
+def camera_image(
+    scene: MeshScene, result: CausticMapResult, camera: PinholeCamera, *, albedo: float = 0.8
+) -> Array:
+    """The paper's final pass, seen from a camera: the receiver (the plane ``z = 0``
+    within its extent; black elsewhere) shaded as a Lambertian surface of the given
+    `albedo`: radiance ``albedo / pi (E_direct + E_caustic)``, ``E_direct`` the light's
+    irradiance where the shadow map (`result.shadow_map`) does not see the generator,
+    ``E_caustic`` the caustic map projected as in `project_caustic_map`. The generator
+    itself is not drawn (only its shadow and caustic). Same units as the images;
+    **returns** ``(rows, cols)`` or ``(rows, cols, channels)``."""
+    origin, directions = camera.rays()
+    dtype = result.caustic_map.dtype
+    origin, directions = origin.astype(dtype), directions.astype(dtype)
+    down = directions[..., 2] < 0
+    t = -origin[2] / jnp.where(down, directions[..., 2], -1.0)
+    points = origin + t[..., None] * directions
+    x0, x1, y0, y1 = (scene.receiver.extent[k] for k in range(4))
+    seen = down & (points[..., 0] >= x0) & (points[..., 0] <= x1)
+    seen = seen & (points[..., 1] >= y0) & (points[..., 1] <= y1)
+    normals = jnp.broadcast_to(jnp.array([0.0, 0.0, 1.0], dtype), points.shape)
+    view = result.view
+    caustic = project_caustic_map(view, result.caustic_map, points, normals)  # (C, r, c)
+    u, v = view.project(points)
+    x, y = view.to_texels(u, v, result.shadow_map.shape)
+    shadowed = bilinear(result.shadow_map.astype(dtype), x, y) >= 0.5
+    direct = jnp.where(shadowed, 0.0, view.density(u, v) * view.area_ratio(points, normals))
+    radiance = albedo / jnp.pi * (direct[None] + caustic)
+    radiance = jnp.where(seen[None], radiance, 0.0)
+    return _channels_last(scene, radiance)
