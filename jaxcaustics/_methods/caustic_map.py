@@ -245,7 +245,7 @@ def caustics_mapping(
     sigma: float | Literal["auto"] = "auto",
     gbuffer_resolution: int | None = None,
     intersection: Literal["image_space", "exact"] = "image_space",
-    iterations: int = 1,
+    iterations: int = 4,
     memory_limit: int | None = None,
 ) -> CausticMapResult:
     """Caustics of a mesh scene by Shah et al.'s caustics mapping (dense photon splats).
@@ -265,7 +265,10 @@ def caustics_mapping(
     - `intersection`: ``"image_space"`` (the paper's estimate: `ray_geo` on the
       positions textures, two interfaces) or ``"exact"`` (ray tracing through the mesh
       and onto the plane; `gbuffer_resolution` unused).
-    - `iterations`: steps of the image-space intersection estimate (the paper uses 1).
+    - `iterations`: steps of the image-space intersection estimate. The paper uses 1;
+      the default 4 brings the median landing error on a glass ball from 2.5% to 0.1%
+      of its radius (`jaxcaustics._gbuffer.intersection_errors`; near the rim the
+      update converges slowly whatever the count), for one texture lookup per step.
     - `memory_limit`: bytes of photon buffer per batch (`photon_bytes` per photon);
       photons beyond it are shaded and splatted in further batches. Default 1 GiB.
 
@@ -415,7 +418,7 @@ def adaptive_caustic_map(
     sigma: float | Literal["auto"] = "auto",
     gbuffer_resolution: int | None = None,
     intersection: Literal["image_space", "exact"] = "image_space",
-    iterations: int = 1,
+    iterations: int = 4,
     memory_limit: int | None = None,
     discard: Literal["footprint", "samples"] = "footprint",
 ) -> CausticMapResult:
@@ -448,7 +451,8 @@ def adaptive_caustic_map(
       for good) or ``"footprint"`` (also none of the geometry-buffer texels under the
       cluster's area sees the object: nothing is lost that the dense grid would find).
     - `gbuffer_resolution`: default ``R / 4`` (the paper samples the geometry buffers at
-      a quarter of the caustic map's resolution), at least 64.
+      a quarter of the caustic map's resolution), within ``[256, 1024]`` (an object
+      that fills a small part of the light's view needs texels across it).
 
     **Returns:** a `CausticMapResult` with per-level counts in `stats`. Differentiable
     with respect to the scene through the photons' landing points (the traversal's
@@ -474,7 +478,7 @@ def adaptive_caustic_map(
     check_from = _check_int(check_from, "check_from", 1)
     sigma = _check_sigma(sigma, map_resolution, photons)
     if gbuffer_resolution is None:
-        gbuffer_resolution = max(64, map_resolution // 4)
+        gbuffer_resolution = min(1024, max(256, map_resolution // 4))
     gbuffer_resolution = _check_int(gbuffer_resolution, "gbuffer_resolution", 2)
     max_level = ratio.bit_length() - 1
     check_level = max(0, math.ceil(math.log2(max(check_from, base) / base)))
