@@ -111,7 +111,8 @@ class LightView(eqx.Module):
         return (u - u0) * (cols / (u1 - u0)), (v - v0) * (rows / (v1 - v0))
 
 
-def _basis(axis: Array) -> tuple[Array, Array]:
+def orthonormal_basis(axis: Array) -> tuple[Array, Array]:
+    """Two unit vectors ``e1, e2`` that make ``(axis, e1, e2)`` orthonormal."""
     helper = jnp.where(
         jnp.abs(axis[0]) < 0.9,
         jnp.array([1.0, 0.0, 0.0], axis.dtype),
@@ -166,7 +167,7 @@ def light_view(scene) -> LightView:
         axis = axis / jnp.linalg.norm(axis)
         intensity = sg(jnp.asarray(scene.light.intensity, dtype))
         perspective = True
-    e1, e2 = _basis(axis)
+    e1, e2 = orthonormal_basis(axis)
     rel = points - centre
     depth = rel @ axis
     if perspective:

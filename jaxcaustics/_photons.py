@@ -21,6 +21,7 @@ import jax.numpy as jnp
 from jaxtyping import Array, Bool, Float
 
 from ._intersect import face_normals, hit_on_triangle, nearest_hits, vertex_normals
+from ._light_view import orthonormal_basis
 from ._mesh import MeshScene
 from ._optics import fresnel_transmittance, reflect, refract_components
 from ._scene import DirectionalLight, LensScene
@@ -174,13 +175,7 @@ def _emission_frame(scene: MeshScene, dtype):
     else:
         axis = centre - sg(scene.light.position).astype(dtype)
         axis = axis / jnp.linalg.norm(axis)
-    # a helper vector not parallel to the axis, then an orthonormal basis
-    helper = jnp.where(
-        jnp.abs(axis[0]) < 0.9, jnp.array([1.0, 0, 0], dtype), jnp.array([0, 1.0, 0], dtype)
-    )
-    e1 = jnp.cross(axis, helper)
-    e1 = e1 / jnp.linalg.norm(e1)
-    e2 = jnp.cross(axis, e1)
+    e1, e2 = orthonormal_basis(axis)
     return centre, radius, axis, e1, e2
 
 
