@@ -245,6 +245,8 @@ def test_caustics_mapping_is_jit_compatible(ball):
     np.testing.assert_allclose(image, eager, rtol=1e-10, atol=1e-12)
     with pytest.raises(ValueError, match="outside jax.jit"):
         jax.jit(lambda s: jc.adaptive_caustic_map(s, photons=128).image)(ball)
+    with pytest.raises(ValueError, match="capacity"):
+        jc.adaptive_caustic_map(ball, photons=128, capacity=100)
 
 
 def test_render_dispatches_to_the_caustic_maps(ball):
@@ -303,3 +305,37 @@ def test_camera_image_shades_the_receiver(ball):
     assert np.sum(image < 0.5 * lit) > 20  # the shadow ring around it
     with pytest.raises(ValueError, match="look_at"):
         jc.PinholeCamera([0.0, 0.0, 1.0], [0.0, 0.0, 1.0])
+
+
+def test_adaptive_capacity_runs_under_jit(ball):
+    """The all-jit traversal (`capacity`) inside an outer `jax.jit`: the host-driven
+    traversal's image."""
+    knobs = dict(photons=128, map_resolution=32, gbuffer_resolution=64)
+    host = jc.adaptive_caustic_map(ball, **knobs)
+    outer = jax.jit(lambda s: jc.adaptive_caustic_map(s, capacity=2048, **knobs).image)
+    np.testing.assert_allclose(outer(ball), host.image, rtol=1e-10, atol=1e-12)
+
+
+@pytest.mark.slow
+def test_adaptive_traversal_all_under_jit(ball):
+    """With `capacity` the whole traversal runs under one jit (fixed-size level buffers,
+    `jnp.nonzero` compaction, batches in a scan): the same counts and image as the
+    host-driven traversal, under a memory limit (batches of at most the limit)."""
+    knobs = dict(photons=256, map_resolution=64, gbuffer_resolution=64)
+    host = jc.adaptive_caustic_map(ball, **knobs)
+    limit = 300 * jc.photon_bytes(1, 7, np.float64)
+    in_jit = jc.adaptive_caustic_map(ball, capacity=4096, memory_limit=limit, **knobs)
+    for key in ("generated_per_level", "splatted_per_level", "refined_per_level"):
+        assert in_jit.stats[key] == host.stats[key]
+    assert in_jit.stats["peak_buffer_bytes"] <= limit
+    np.testing.assert_allclose(in_jit.image, host.image, rtol=1e-10, atol=1e-12)
+
+
+@pytest.mark.slow
+def test_adaptive_capacity_overflow_raises(ball):
+    """At 512^2 equivalent the last level holds about 2500 clusters: a capacity of 1024
+    (the first level's 32^2) overflows, and the error says so."""
+    with pytest.raises(ValueError, match="`capacity` 1024 is too small"):
+        jc.adaptive_caustic_map(
+            ball, photons=512, map_resolution=64, gbuffer_resolution=128, capacity=1024
+        )

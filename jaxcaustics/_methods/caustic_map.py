@@ -407,6 +407,111 @@ def _bucket(count: int, cap: int) -> int:
     return min(cap, max(64, 1 << max(0, count - 1).bit_length()))
 
 
+def _first_clusters(base: int) -> np.ndarray:
+    half = base // 2
+    rows, cols = np.meshgrid(np.arange(half), np.arange(half), indexing="ij")
+    return np.stack([rows.ravel(), cols.ravel()], axis=1).astype(np.int32)
+
+
+def _traverse_on_host(scene, buffers, cfg: _AdaptiveConfig, cap: int):
+    """The photon tree, level by level, decided on the host between jit-compiled steps:
+    each step's buffer is sized to its clusters (`_bucket`, at most `cap`); children
+    beyond `cap` go in further batches, refined to the end before the next (a stack)."""
+    channels = len(scene.iors)
+    dtype = scene.generator.vertices.dtype
+    rows, cols = cfg.map_shape
+    cmap = jnp.zeros((channels, rows, cols), dtype)
+    total = jnp.zeros((channels,), dtype)
+    levels = cfg.max_level + 1
+    stats = {
+        "generated_per_level": [0] * levels,
+        "splatted_per_level": [0] * levels,
+        "refined_per_level": [0] * levels,
+        "batches": 0,
+        "peak_buffer_photons": 0,
+    }
+    start = _first_clusters(cfg.base)
+    stack = [(0, start[k : k + cap]) for k in range(0, len(start), cap)][::-1]
+    while stack:
+        level, chunk = stack.pop()
+        size = _bucket(len(chunk), cap)
+        clusters = np.zeros((size, 2), np.int32)
+        clusters[: len(chunk)] = chunk
+        active = np.arange(size) < len(chunk)
+        cmap, flux, refine, generated, splatted = _adaptive_step(
+            scene,
+            buffers,
+            cmap,
+            jnp.asarray(clusters),
+            jnp.asarray(active),
+            jnp.asarray(level, jnp.int32),
+            cfg,
+        )
+        total = total + flux
+        if isinstance(refine, jax.core.Tracer):  # under jit: no concrete choices
+            raise ValueError(
+                "adaptive_caustic_map decides its photon tree on the host: call it outside "
+                "jax.jit (jax.grad works), or pass `capacity` to run it all under jit"
+            )
+        refine = np.asarray(refine)[: len(chunk)]
+        stats["generated_per_level"][level] += int(generated)
+        stats["splatted_per_level"][level] += int(splatted)
+        stats["refined_per_level"][level] += int(refine.sum())
+        stats["batches"] += 1
+        stats["peak_buffer_photons"] = max(stats["peak_buffer_photons"], 4 * size)
+        kept = chunk[refine]
+        if len(kept):
+            children = (2 * kept[:, None, :] + _CHILD[None]).reshape(-1, 2)
+            parts = [children[k : k + cap] for k in range(0, len(children), cap)]
+            stack.extend((level + 1, part) for part in parts[::-1])
+    return cmap, total, stats
+
+
+@eqx.filter_jit
+def _traverse_in_jit(scene, buffers, cfg: _AdaptiveConfig, capacity: int, batch: int):
+    """The photon tree under jit: every level holds `capacity` clusters (masks), shaded
+    in batches of `batch` (a scan); the refined clusters' children are compacted into
+    the next level's buffer (`jnp.nonzero` with a fixed size). **Returns:** the map, the
+    flux per channel, and per-level counts with an overflow flag."""
+    channels = len(scene.iors)
+    dtype = scene.generator.vertices.dtype
+    cmap = jnp.zeros((channels,) + cfg.map_shape, dtype)
+    total = jnp.zeros((channels,), dtype)
+    start = _first_clusters(cfg.base)
+    if len(start) > capacity:
+        raise ValueError(f"`capacity` must hold the first level's {len(start)} clusters")
+    clusters = jnp.zeros((capacity, 2), jnp.int32).at[: len(start)].set(jnp.asarray(start))
+    active = jnp.arange(capacity) < len(start)
+    counts = [[], [], []]
+    overflow = jnp.zeros((), bool)
+
+    @jax.checkpoint
+    def step(carry, chunk):
+        cmap, total, level = carry
+        cmap, flux, refine, generated, splatted = _adaptive_step(
+            scene, buffers, cmap, chunk[0], chunk[1], level, cfg
+        )
+        return (cmap, total + flux, level), (refine, generated, splatted)
+
+    for level in range(cfg.max_level + 1):
+        chunks = (clusters.reshape(-1, batch, 2), active.reshape(-1, batch))
+        level_index = jnp.asarray(level, jnp.int32)
+        (cmap, total, _), (refine, generated, splatted) = jax.lax.scan(
+            step, (cmap, total, level_index), chunks
+        )
+        refine = refine.reshape(-1)
+        counts[0].append(generated.sum())
+        counts[1].append(splatted.sum())
+        counts[2].append(refine.sum())
+        children = (2 * clusters[:, None, :] + jnp.asarray(_CHILD)[None]).reshape(-1, 2)
+        keep = jnp.repeat(refine, 4)
+        overflow = overflow | (keep.sum() > capacity)
+        (index,) = jnp.nonzero(keep, size=capacity, fill_value=0)
+        clusters = children[index]
+        active = jnp.arange(capacity) < keep.sum()
+    return cmap, total, tuple(jnp.stack(c) for c in counts) + (overflow,)
+
+
 def adaptive_caustic_map(
     scene: MeshScene,
     *,
@@ -421,6 +526,7 @@ def adaptive_caustic_map(
     iterations: int = 4,
     memory_limit: int | None = None,
     discard: Literal["footprint", "samples"] = "footprint",
+    capacity: int | None = None,
 ) -> CausticMapResult:
     """Caustics of a mesh scene by Wyman & Nichols' adaptive caustic maps.
 
@@ -436,10 +542,16 @@ def adaptive_caustic_map(
       splatted as one photon carrying their flux; the rest go on down to the traversal
       level, where they are all splatted.
 
-    The traversal runs level by level (breadth first) in fixed-size buffers (masks and
-    compaction, one jit-compiled kernel per buffer size); when a level's photons would
-    take more than `memory_limit` bytes (`photon_bytes` each), its clusters are split
-    into batches, each refined and splatted to the end before the next (depth first).
+    The traversal runs level by level (breadth first) in fixed-size buffers with masks.
+    By default the tree is decided on the host between jit-compiled steps (one per
+    buffer size, each sized to the level's clusters): when a level's photons would take
+    more than `memory_limit` bytes (`photon_bytes` each), its clusters are split into
+    batches, each refined and splatted to the end before the next (depth first). With
+    `capacity` (clusters per level) the whole traversal runs under one `jit`: every
+    level is a buffer of `capacity` clusters shaded in batches under the memory limit,
+    and the refined clusters' children are compacted into the next level's buffer
+    (``jnp.nonzero`` with a fixed size; a level that would overflow raises, or under an
+    outer `jit` sets ``stats["overflow"]``). Same image either way.
 
     **Arguments** (see `caustics_mapping` for the shared ones):
 
@@ -454,10 +566,12 @@ def adaptive_caustic_map(
       a quarter of the caustic map's resolution), within ``[256, 1024]`` (an object
       that fills a small part of the light's view needs texels across it).
 
+    - `capacity`: clusters per level for the all-jit traversal (``None``: host-driven).
+
     **Returns:** a `CausticMapResult` with per-level counts in `stats`. Differentiable
     with respect to the scene through the photons' landing points (the traversal's
-    choices are piecewise constant); the traversal needs concrete values, so call it
-    outside `jax.jit` (``jax.grad`` works).
+    choices are piecewise constant). The host-driven traversal runs outside `jax.jit`
+    (``jax.grad`` works); with `capacity` it also runs inside.
     """
     map_resolution, memory_limit = _check_common(
         scene, map_resolution, sigma, intersection, iterations, memory_limit
@@ -476,6 +590,8 @@ def adaptive_caustic_map(
     if discard not in ("footprint", "samples"):
         raise ValueError(f"`discard` must be 'footprint' or 'samples', got {discard!r}")
     check_from = _check_int(check_from, "check_from", 1)
+    if capacity is not None:
+        capacity = _check_int(capacity, "capacity", (base // 2) ** 2)
     sigma = _check_sigma(sigma, map_resolution, photons)
     if gbuffer_resolution is None:
         gbuffer_resolution = min(1024, max(256, map_resolution // 4))
@@ -500,52 +616,30 @@ def adaptive_caustic_map(
         discard,
     )
     buffers = _view_and_buffers(scene, gbuffer_resolution)
-    cmap = jnp.zeros((channels, map_resolution, map_resolution), dtype)
-    total = jnp.zeros((channels,), dtype)
-    levels = max_level + 1
-    stats = {
-        "generated_per_level": [0] * levels,
-        "splatted_per_level": [0] * levels,
-        "refined_per_level": [0] * levels,
-        "batches": 0,
-        "peak_buffer_photons": 0,
-    }
-    half = base // 2
-    rows, cols = np.meshgrid(np.arange(half), np.arange(half), indexing="ij")
-    start = np.stack([rows.ravel(), cols.ravel()], axis=1).astype(np.int32)
-    stack = [(0, start[k : k + cap]) for k in range(0, len(start), cap)][::-1]
-    while stack:
-        level, chunk = stack.pop()
-        size = _bucket(len(chunk), cap)
-        clusters = np.zeros((size, 2), np.int32)
-        clusters[: len(chunk)] = chunk
-        active = np.arange(size) < len(chunk)
-        cmap, flux, refine, generated, splatted = _adaptive_step(
-            scene,
-            buffers,
-            cmap,
-            jnp.asarray(clusters),
-            jnp.asarray(active),
-            jnp.asarray(level, jnp.int32),
-            cfg,
-        )
-        total = total + flux
-        if isinstance(refine, jax.core.Tracer):  # under jit: no concrete choices
-            raise ValueError(
-                "adaptive_caustic_map traverses its photon tree on the host: call it "
-                "outside jax.jit (jax.grad works); caustics_mapping is jit-compatible"
-            )
-        refine = np.asarray(refine)[: len(chunk)]
-        stats["generated_per_level"][level] += int(generated)
-        stats["splatted_per_level"][level] += int(splatted)
-        stats["refined_per_level"][level] += int(refine.sum())
-        stats["batches"] += 1
-        stats["peak_buffer_photons"] = max(stats["peak_buffer_photons"], 4 * size)
-        kept = chunk[refine]
-        if len(kept):
-            children = (2 * kept[:, None, :] + _CHILD[None]).reshape(-1, 2)
-            parts = [children[k : k + cap] for k in range(0, len(children), cap)]
-            stack.extend((level + 1, part) for part in parts[::-1])
+    if capacity is None:
+        cmap, total, stats = _traverse_on_host(scene, buffers, cfg, cap)
+    else:
+        batch = min(cap, capacity)
+        capacity = -(-capacity // batch) * batch  # whole batches
+        cmap, total, counts = _traverse_in_jit(scene, buffers, cfg, capacity, batch)
+        stats = {
+            "generated_per_level": counts[0],
+            "splatted_per_level": counts[1],
+            "refined_per_level": counts[2],
+            "overflow": counts[3],
+            "batches": (max_level + 1) * (capacity // batch),
+            "peak_buffer_photons": 4 * batch,
+        }
+        if not isinstance(counts[3], jax.core.Tracer):
+            if bool(counts[3]):
+                raise ValueError(
+                    f"`capacity` {capacity} is too small: a level refines more clusters "
+                    "(run once without it to see `refined_per_level`, and pass at least "
+                    "four times the largest)"
+                )
+            for key in ("generated_per_level", "splatted_per_level", "refined_per_level"):
+                stats[key] = [int(k) for k in np.asarray(stats[key])]
+            stats["overflow"] = False
     images, missed = _receiver_image(scene, buffers.view, cmap, total)
     stats["generated"] = sum(stats["generated_per_level"])
     stats["splatted"] = sum(stats["splatted_per_level"])
