@@ -65,9 +65,10 @@ Writes, to ``--output`` (default ``paper_figures/output/``):
 - ``table1_adaptive.md``: the tables (also printed);
 - ``table1_adaptive.json``: every number, per-level counts and the settings.
 
-Run ``python paper_figures/table1_adaptive.py`` (about 15 minutes on 2 CPU cores), or
-``--quick`` for a smoke test (the sphere only, 256^2 and 512^2, a 48 x 48 receiver, a
-192^2 map, a coarser mesh; jit compilation is most of its time).
+Run ``python paper_figures/table1_adaptive.py`` (15 to 20 minutes on 2 CPU cores, a third
+of it jit compilation: every row compiles its own kernels), or ``--quick`` for a smoke
+test (the sphere only, 256^2 and 512^2, a 48 x 48 receiver, a 192^2 map, a coarser mesh;
+about a minute and a half, nearly all of it compilation).
 """
 
 from __future__ import annotations
@@ -354,9 +355,14 @@ def markdown(results: list[dict], settings: dict, args, total_s: float) -> str:
             if args.repeat <= 1
             else f"median of {args.repeat - 1} calls after a warm-up call."
         )
-        + f" Dense rows are not run (time) above {settings['max_dense']}^2 or where their "
-        f"estimated time (the largest dense row run's time per photon, times N^2) exceeds "
-        f"{args.dense_budget:g} s: their N^2 is given with that estimate.",
+        + (
+            f" Dense rows above {settings['max_dense']}^2 are not run."
+            if settings["max_dense"] < max(settings["resolutions"])
+            else ""
+        )
+        + " A dense row whose estimated time (the largest dense row run's time per "
+        f"photon, times N^2) exceeds {args.dense_budget:g} s is not run (time): its N^2 is "
+        "given with that estimate.",
         "",
         f"Total run time: {total_s:.0f} s.",
         "",
@@ -394,8 +400,10 @@ def markdown(results: list[dict], settings: dict, args, total_s: float) -> str:
     lines.append("")
     for res in results:
         w = res["view_window"]
+        x0, x1, y0, y1 = (float(f"{v:.6g}") for v in res["extent"])
         lines += [
-            f"## {res['scene']} ({res['faces']} faces; receiver {res['extent']}, light's "
+            f"## {res['scene']} ({res['faces']} faces; receiver x, y in "
+            f"[{x0:g}, {x1:g}] x [{y0:g}, {y1:g}] m, light's "
             f"view {w[1] - w[0]:.3g} x {w[3] - w[2]:.3g} m; reference "
             f"{res['reference_seconds']:.0f} s)",
             "",
