@@ -350,19 +350,25 @@ def intersection_errors(
     found = np.asarray(jnp.isfinite(t_exact))
     result = {}
     for k in iterations:
-        exit_point = ray_geo(view, buffers.back_position, point, inside, k)
-        exit_normal = _unit(_sample(view, buffers.back_normal, exit_point, buffers.hit)[0])
-        out, tir, _ = refract_components(tuple(inside.T), tuple(exit_normal.T), ior)
-        out = jnp.stack(out, -1)
-        landed = ray_geo(view, buffers.receiver_position, exit_point, out, k)
-        down = np.asarray((out[:, 2] < 0) & ~tir)
-        plane = (
-            exit_point
-            - (exit_point[:, 2] / jnp.where(out[:, 2] < 0, out[:, 2], -1.0))[:, None] * out
-        )
+        exit_point, landed, plane, down = _estimate(view, buffers, point, inside, ior, k)
         back_error = np.linalg.norm(np.asarray(exit_point - exit_exact), axis=-1)[found]
-        receiver_error = np.linalg.norm(np.asarray(landed - plane), axis=-1)[down]
+        receiver_error = np.linalg.norm(np.asarray(landed - plane), axis=-1)[np.asarray(down)]
         result[k] = tuple(
             float(np.percentile(e, q)) for e in (back_error, receiver_error) for q in (50, 90)
         )
     return result
+
+
+@eqx.filter_jit
+def _estimate(view, buffers, point, inside, ior, iterations):
+    """`intersection_errors`' image-space path for one iteration count: the exit
+    estimate, the floor estimate, the exact floor hit of the estimated leaving ray, and
+    whether that ray goes down."""
+    exit_point = ray_geo(view, buffers.back_position, point, inside, iterations)
+    exit_normal = _unit(_sample(view, buffers.back_normal, exit_point, buffers.hit)[0])
+    out, tir, _ = refract_components(tuple(inside.T), tuple(exit_normal.T), ior)
+    out = jnp.stack(out, -1)
+    landed = ray_geo(view, buffers.receiver_position, exit_point, out, iterations)
+    down = (out[:, 2] < 0) & ~tir
+    t = -exit_point[:, 2] / jnp.where(down, out[:, 2], -1.0)
+    return exit_point, landed, exit_point + t[:, None] * out, down
