@@ -137,8 +137,9 @@ def _round_out(low: Array, high: Array) -> tuple[Array, Array]:
 def light_view(scene) -> LightView:
     """The light's view of a `MeshScene` (or any scene with a `generator` mesh, a `light`
     and a plane `receiver`): its window covers the receiver's extent on ``z = 0`` and the
-    generator's bounding box. Not differentiable (the view is where images are sampled,
-    not part of the scene's physics)."""
+    generator's bounding box. The window is held fixed under differentiation (it is where
+    images are sampled, not physics); the light's direction, position and intensity carry
+    their derivatives into the photons."""
     sg = jax.lax.stop_gradient
     verts = sg(scene.generator.vertices)
     dtype = verts.dtype
@@ -157,15 +158,15 @@ def light_view(scene) -> LightView:
     points = jnp.concatenate([box, corners])
     mid = 0.5 * (points.min(axis=0) + points.max(axis=0))
     if isinstance(scene.light, DirectionalLight):
-        axis = sg(scene.light.unit_direction).astype(dtype)
+        axis = scene.light.unit_direction.astype(dtype)
         centre = 0.5 * (lo + hi)
         intensity = jnp.ones((), dtype)
         perspective = False
     else:
-        centre = sg(scene.light.position).astype(dtype)
+        centre = scene.light.position.astype(dtype)
         axis = mid - centre
         axis = axis / jnp.linalg.norm(axis)
-        intensity = sg(jnp.asarray(scene.light.intensity, dtype))
+        intensity = jnp.asarray(scene.light.intensity, dtype)
         perspective = True
     e1, e2 = orthonormal_basis(axis)
     rel = points - centre
@@ -178,7 +179,7 @@ def light_view(scene) -> LightView:
         u, v = rel @ e1, rel @ e2
     low = jnp.stack([u.min(), v.min()])
     high = jnp.stack([u.max(), v.max()])
-    low, high = _round_out(low, high)
+    low, high = _round_out(sg(low), sg(high))
     window = jnp.stack([low[0], high[0], low[1], high[1]])
-    start = jnp.maximum(0.0, -depth.min()) + 1e-3 * jnp.max(points.max(0) - points.min(0))
+    start = jnp.maximum(0.0, -sg(depth).min()) + 1e-3 * jnp.max(points.max(0) - points.min(0))
     return LightView(centre, axis, e1, e2, window, start, intensity, perspective)

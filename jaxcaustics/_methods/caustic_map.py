@@ -137,7 +137,10 @@ def _view_and_buffers(scene, gbuffer_resolution: int) -> GeometryBuffers:
                 "the light must see the whole scene from one side: a point light inside "
                 "or below the receiver/generator's bounding box has no light view"
             )
-    if isinstance(scene.generator.vertices, jax.core.Tracer):
+    traced = any(
+        isinstance(leaf, jax.core.Tracer) for leaf in jax.tree.leaves((scene.generator, view))
+    )
+    if traced:  # under jit or grad: no concrete footprints
         window = gbuffer_resolution  # every face may cover the whole view
     else:
         window = raster_window(scene, view, gbuffer_resolution)
