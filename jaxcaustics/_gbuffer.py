@@ -241,6 +241,17 @@ def ray_geo(
     return origin + dist[..., None] * direction
 
 
+def _leave(view, buffers, point, inside, ior, iterations):
+    """Image-space refraction's second interface: where the ray refracted into the object
+    at `point` (direction `inside`) leaves it through the back surface (`ray_geo`), and
+    its direction out. **Returns:** ``(exit point, direction, TIR mask, cos of the
+    incidence angle, coverage of the object at the exit)``."""
+    exit_point = ray_geo(view, buffers.back_position, point, inside, iterations)
+    exit_normal, cover = _sample(view, buffers.back_normal, exit_point, buffers.hit)
+    out, tir, cos_out = refract_components(tuple(inside.T), tuple(_unit(exit_normal).T), ior)
+    return exit_point, jnp.stack(out, axis=-1), tir, cos_out, cover
+
+
 class PhotonHits(eqx.Module):
     """Photons shaded at view points: per channel ``(C, P, ...)``.
 
@@ -298,11 +309,9 @@ def shade_photons(
         else:
             inside, _, cos_in = refract_components(tuple(light_dir.T), tuple(normal.T), 1.0 / ior)
             inside = jnp.stack(inside, axis=-1)
-            exit_point = ray_geo(view, buffers.back_position, point, inside, iterations)
-            exit_normal, exit_cover = _sample(view, buffers.back_normal, exit_point, buffers.hit)
-            exit_normal = _unit(exit_normal)
-            out, tir, cos_out = refract_components(tuple(inside.T), tuple(exit_normal.T), ior)
-            origin, direction = exit_point, jnp.stack(out, axis=-1)
+            origin, direction, tir, cos_out, exit_cover = _leave(
+                view, buffers, point, inside, ior, iterations
+            )
             valid = valid & (exit_cover >= 0.5) & ~tir
             if scene.fresnel:
                 flux = (
@@ -364,10 +373,7 @@ def _estimate(view, buffers, point, inside, ior, iterations):
     """`intersection_errors`' image-space path for one iteration count: the exit
     estimate, the floor estimate, the exact floor hit of the estimated leaving ray, and
     whether that ray goes down."""
-    exit_point = ray_geo(view, buffers.back_position, point, inside, iterations)
-    exit_normal = _unit(_sample(view, buffers.back_normal, exit_point, buffers.hit)[0])
-    out, tir, _ = refract_components(tuple(inside.T), tuple(exit_normal.T), ior)
-    out = jnp.stack(out, -1)
+    exit_point, out, tir, _, _ = _leave(view, buffers, point, inside, ior, iterations)
     landed = ray_geo(view, buffers.receiver_position, exit_point, out, iterations)
     down = (out[:, 2] < 0) & ~tir
     t = -exit_point[:, 2] / jnp.where(down, out[:, 2], -1.0)

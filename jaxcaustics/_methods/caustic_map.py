@@ -92,7 +92,7 @@ def _check_int(value, name: str, low: int) -> int:
     return int(value)
 
 
-def _check_common(scene, map_resolution, sigma, intersection, iterations, memory_limit):
+def _check_common(scene, map_resolution, intersection, iterations, memory_limit):
     if not isinstance(scene, MeshScene):
         raise ValueError(
             f"`scene` must be a MeshScene, got {type(scene).__name__} (lens slabs: use "
@@ -279,7 +279,7 @@ def caustics_mapping(
     generator's vertices (and the light), through the geometry buffers and the photons.
     """
     map_resolution, memory_limit = _check_common(
-        scene, map_resolution, sigma, intersection, iterations, memory_limit
+        scene, map_resolution, intersection, iterations, memory_limit
     )
     photons = _check_int(photons, "photons", 2)
     sigma = _check_sigma(sigma, map_resolution, photons)
@@ -579,7 +579,7 @@ def adaptive_caustic_map(
     (``jax.grad`` works); with `capacity` it also runs inside.
     """
     map_resolution, memory_limit = _check_common(
-        scene, map_resolution, sigma, intersection, iterations, memory_limit
+        scene, map_resolution, intersection, iterations, memory_limit
     )
     photons = _check_int(photons, "photons", 2)
     base = _check_int(base, "base", 2)
