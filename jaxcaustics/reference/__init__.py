@@ -1,4 +1,4 @@
-"""Reference photon tracers (water, lens, mesh scenes): plain NumPy, the tests' ground truth.
+"""Reference photon tracers (water, lens, mesh, ellipsoid scenes): plain NumPy, ground truth.
 
 This package imports no JAX (nor anything from the library's private ``jaxcaustics._*``
 modules), only NumPy and the standard library, so it shares no code with the methods it
@@ -21,6 +21,9 @@ Public functions
   or mirroring triangle mesh, occluders): image (and photon counts), photon by photon,
   emission grid.
 - `intersect_mesh`: nearest ray/triangle hits (exact Möller–Trumbore, float64).
+- `trace_ellipsoid`, `trace_ellipsoid_rays`: the ellipsoid scene (an analytic glass
+  ellipsoid or sphere, ellipsoid occluders, directional light): image (and photon
+  counts), and given rays traced to where they leave the ellipsoid.
 
 Conventions (shared exactly with the JAX side)
 ----------------------------------------------
@@ -128,8 +131,24 @@ occluder meshes.
   ``I |w . axis| A / r^2`` for the cell area ``A`` at distance ``r``.
 - Ray/triangle hits: Möller–Trumbore in float64, with a barycentric slack of 1e-12 so
   that rays through shared edges do not leak; a bounding volume hierarchy only culls.
+
+Ellipsoid (`EllipsoidScene`): a glass ellipsoid (``center``, semi-axes ``radii``,
+orthonormal ``rotation`` whose columns are its axes) of index ``n`` (each of
+``scene.ior``), opaque ellipsoid occluders, a directional light.
+
+- Intersections are exact: the quadric ``(x - c)^T Q (x - c) = 1``,
+  ``Q = R diag(radii)^-2 R^T``, solved in world coordinates (cancellation-free roots);
+  from outside the smaller root counts, from inside the larger (roots within 1e-9 of the
+  largest semi-axis are ignored). The normal is ``Q (x - c)`` normalised.
+- Paths follow the mesh rules above (events, total internal reflection, Fresnel,
+  occluders, dropping, landing), with "entering" meaning "outside before the event".
+- Emission: the bounding rectangle of the generator's parallel projection onto the plane
+  through its centre perpendicular to the light (from support functions), cut into a
+  grid of equal cells; photons start before every ellipsoid and carry
+  ``A_perp / |d_z|``, as for meshes.
 """
 
+from ._ellipsoid import trace_ellipsoid, trace_ellipsoid_rays
 from ._lens import emit_lens_photons, trace_lens, trace_lens_photons
 from ._mesh import emit_mesh_photons, intersect_mesh, trace_mesh, trace_mesh_photons
 from ._surface import surface_height
@@ -141,6 +160,8 @@ __all__ = [
     "emit_mesh_photons",
     "intersect_mesh",
     "surface_height",
+    "trace_ellipsoid",
+    "trace_ellipsoid_rays",
     "trace_lens",
     "trace_lens_photons",
     "trace_mesh",
