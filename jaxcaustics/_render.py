@@ -7,6 +7,7 @@ from typing import Any
 from jaxtyping import Array
 
 from ._methods.caustic_map import adaptive_caustic_map, caustics_mapping
+from ._methods.spot_lights import spot_lights
 from ._methods.triangles import caustic_triangles
 from ._methods.twopass import two_pass
 from ._scene import WaterScene
@@ -16,9 +17,15 @@ METHODS = {
     "triangles": caustic_triangles,
     "caustics_mapping": caustics_mapping,
     "adaptive": adaptive_caustic_map,
+    "spot_lights": spot_lights,
 }
 # the method each scene type gets when none is named
-DEFAULT_METHOD = {"WaterScene": "twopass", "LensScene": "triangles", "MeshScene": "triangles"}
+DEFAULT_METHOD = {
+    "WaterScene": "twopass",
+    "LensScene": "triangles",
+    "MeshScene": "triangles",
+    "EllipsoidScene": "spot_lights",
+}
 
 
 def render(
@@ -28,16 +35,18 @@ def render(
 
     **Arguments:**
 
-    - `scene`: a `WaterScene`, `LensScene` or `MeshScene`.
+    - `scene`: a `WaterScene`, `LensScene`, `MeshScene` or `EllipsoidScene`.
     - `method`: ``"twopass"`` (Yuksel & Keyser; water), ``"triangles"`` (Umenhoffer et
       al.'s caustic triangles; lens and mesh scenes), ``"caustics_mapping"`` (Shah et
       al.'s splatted caustic map; mesh scenes) or ``"adaptive"`` (Wyman & Nichols'
-      adaptive caustic map; mesh scenes). Default: the scene's natural method
-      (``"twopass"`` for water, ``"triangles"`` otherwise).
+      adaptive caustic map; mesh scenes) or ``"spot_lights"`` (Liu et al.'s caustic spot
+      lights; ellipsoid and mesh scenes). Default: the scene's natural method
+      (``"twopass"`` for water, ``"spot_lights"`` for ellipsoids, ``"triangles"``
+      otherwise).
     - `return_stats`: also return a dict of diagnostics (``missed_flux_fraction`` per
       channel).
     - `**knobs`: the method's quality knobs (see `two_pass`, `caustic_triangles`,
-      `caustics_mapping`, `adaptive_caustic_map`).
+      `caustics_mapping`, `adaptive_caustic_map`, `spot_lights`).
 
     **Returns:** the irradiance image, relative to the irradiance the light gives a
     horizontal plane: ``(rows, cols)`` for a single index of refraction, ``(rows, cols,

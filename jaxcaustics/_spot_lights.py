@@ -240,6 +240,7 @@ def evaluate_spot_lights(
     *,
     max_gain: float = 1e4,
     axis_epsilon: float = 1e-9,
+    intensity_correction: bool = True,
 ) -> SpotLightRays:
     """Evaluate caustic spot lights at points (Liu et al. 2008, Sections 2.2 and 2.3).
 
@@ -270,6 +271,8 @@ def evaluate_spot_lights(
     - `points`: ``(P, 3)`` points in metres.
     - `max_gain`: bound on the intensity correction ``1 / sigma`` (> 0).
     - `axis_epsilon`: smoothing radius around the axis, metres (> 0).
+    - `intensity_correction`: apply Eq. 4 (default); ``False`` gives the uncorrected
+      rendering of the paper's Fig. 6 (``sigma = 1``).
 
     **Returns:** `SpotLightRays` with ``(P, K, 3)`` fields.
     """
@@ -311,8 +314,11 @@ def evaluate_spot_lights(
     w = lights.half_width[:, None]
     inside = (jnp.abs(u) <= w) & (jnp.abs(v) <= w)
     valid = exists & inside & lights.active[:, None]
-    sigma = _area_ratio(kappa, lights.beta, z, r)
-    sigma = jnp.sqrt(sigma * sigma + (1.0 / max_gain) ** 2)
+    if intensity_correction:
+        sigma = _area_ratio(kappa, lights.beta, z, r)
+        sigma = jnp.sqrt(sigma * sigma + (1.0 / max_gain) ** 2)
+    else:
+        sigma = jnp.ones_like(r)
     irradiance = jnp.where(valid, intensity / (sigma * cos_axis), 0.0)
     return SpotLightRays(irradiance, direction, source, valid)
 
@@ -362,6 +368,7 @@ def shade_points(
     occluders=(),
     max_gain: float = 1e4,
     axis_epsilon: float = 1e-9,
+    intensity_correction: bool = True,
 ) -> Float[Array, " P"]:
     """Light arriving at surface points from a set of caustic spot lights.
 
@@ -378,7 +385,7 @@ def shade_points(
     - `shading`: ``None`` (default): the irradiance ``E = sum_k E_k max(0, -e_k . n)``;
       `Lambertian` or `Glossy`: the radiance they send (towards `Glossy.eye`).
     - `occluders`: opaque `Ellipsoid` objects (spheres: `Ellipsoid.sphere`).
-    - `max_gain`, `axis_epsilon`: see `evaluate_spot_lights`.
+    - `max_gain`, `axis_epsilon`, `intensity_correction`: see `evaluate_spot_lights`.
 
     **Returns:** ``(P,)``.
     """
@@ -394,7 +401,13 @@ def shade_points(
 
     def one_light(total, light):
         light = jax.tree.map(lambda a: a[None], light)
-        rays = evaluate_spot_lights(light, points, max_gain=max_gain, axis_epsilon=axis_epsilon)
+        rays = evaluate_spot_lights(
+            light,
+            points,
+            max_gain=max_gain,
+            axis_epsilon=axis_epsilon,
+            intensity_correction=intensity_correction,
+        )
         e = rays.direction[:, 0]  # (P, 3 rays, 3)
         cos = jnp.maximum(-jnp.sum(e * normals[:, None, :], axis=-1), 0.0)
         arriving = rays.irradiance[:, 0] * cos  # (P, 3)
@@ -447,12 +460,14 @@ def render_spot_lights(
     occluders=(),
     max_gain: float = 1e4,
     axis_epsilon: float = 1e-9,
+    intensity_correction: bool = True,
 ) -> Float[Array, "rows cols"]:
     """Render a set of caustic spot lights on a `PlaneReceiver` (the plane ``z = 0``,
     normal ``+z``), averaging ``samples x samples`` points per pixel (a caustic is
     sharper than a pixel; the reference bins photons over whole pixels).
 
-    See `shade_points` for `shading`, `occluders`, `max_gain`, `axis_epsilon`.
+    See `shade_points` for `shading`, `occluders`, `max_gain`, `axis_epsilon` and
+    `intensity_correction`.
     **Returns** ``(rows, cols)``: irradiance in the lights' intensity units (or radiance
     with a `shading` model).
     """
@@ -468,5 +483,6 @@ def render_spot_lights(
         occluders=occluders,
         max_gain=max_gain,
         axis_epsilon=axis_epsilon,
+        intensity_correction=intensity_correction,
     )
     return values.reshape(s2, rows, cols).mean(axis=0)
