@@ -1,12 +1,15 @@
 """jaxcaustics: differentiable, jit-compiled caustics in JAX.
 
 Methods: `two_pass` (Yuksel & Keyser, water), `caustic_triangles` (Umenhoffer et al.,
-lens and mesh scenes), `caustics_mapping` (Shah et al.'s splatted caustic maps) and
-`adaptive_caustic_map` (Wyman & Nichols), all reachable through `render`.
+lens and mesh scenes), `caustics_mapping` (Shah et al.'s splatted caustic maps),
+`adaptive_caustic_map` (Wyman & Nichols) and `spot_lights` (Liu et al.'s caustic spot
+lights: `fit_spot_lights`, `render_spot_lights`, and for a moving light
+`precompute_spot_lights` / `interpolate_spot_lights`), all reachable through `render`.
 
 Build a scene (`WaterScene`: a `HeightField` water surface; `LensScene`: a glass slab
 with a height-field top; `MeshScene`: a glass or mirror `Mesh` with optional occluders;
-each with a `DirectionalLight` or `PointLight` and a `PlaneReceiver`), then `render` it.
+`EllipsoidScene`: a glass `Ellipsoid` or sphere; each with a `DirectionalLight` or
+`PointLight` and a `PlaneReceiver`), then `render` it.
 The NumPy reference lives in `jaxcaustics.reference` and imports no JAX.
 
 Inverse problems: `design_lens` (a caustic lens for a target picture; `export_lens`
@@ -17,6 +20,18 @@ water surface from its caustic).
 
 import importlib.metadata
 
+from ._ellipsoid import (
+    Ellipsoid as Ellipsoid,
+)
+from ._ellipsoid import (
+    EllipsoidScene as EllipsoidScene,
+)
+from ._ellipsoid import (
+    ExitRays as ExitRays,
+)
+from ._ellipsoid import (
+    trace_exit_rays as trace_exit_rays,
+)
 from ._export import (
     ManufacturabilityReport as ManufacturabilityReport,
 )
@@ -113,6 +128,12 @@ from ._methods.caustic_map import (
 from ._methods.caustic_map import (
     project_caustic_map as project_caustic_map,
 )
+from ._methods.spot_lights import (
+    SpotLightResult as SpotLightResult,
+)
+from ._methods.spot_lights import (
+    spot_lights as spot_lights,
+)
 from ._methods.triangles import (
     CubeMapOptions as CubeMapOptions,
 )
@@ -176,6 +197,48 @@ from ._scene import (
 )
 from ._scene import (
     WaterScene as WaterScene,
+)
+from ._spot_light_fit import (
+    FitInfo as FitInfo,
+)
+from ._spot_light_fit import (
+    fit_spot_lights as fit_spot_lights,
+)
+from ._spot_light_fit import (
+    refine_axis as refine_axis,
+)
+from ._spot_light_table import (
+    SpotLightTable as SpotLightTable,
+)
+from ._spot_light_table import (
+    icosphere_directions as icosphere_directions,
+)
+from ._spot_light_table import (
+    interpolate_spot_lights as interpolate_spot_lights,
+)
+from ._spot_light_table import (
+    precompute_spot_lights as precompute_spot_lights,
+)
+from ._spot_lights import (
+    Glossy as Glossy,
+)
+from ._spot_lights import (
+    Lambertian as Lambertian,
+)
+from ._spot_lights import (
+    SpotLightRays as SpotLightRays,
+)
+from ._spot_lights import (
+    SpotLights as SpotLights,
+)
+from ._spot_lights import (
+    evaluate_spot_lights as evaluate_spot_lights,
+)
+from ._spot_lights import (
+    render_spot_lights as render_spot_lights,
+)
+from ._spot_lights import (
+    shade_points as shade_points,
 )
 from ._surface import height_and_gradient as height_and_gradient
 from ._waves import (

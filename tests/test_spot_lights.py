@@ -171,7 +171,7 @@ def hard_points(light):
     alpha = float(light.alpha[0])
     # on the axis before, among and past the foci, and at the central focus itself (for a
     # nearly collimated light: near and far points)
-    zs = [0.3, 0.7 * alpha, alpha, 1.2 * alpha] if alpha < 100 else [0.3, 1.0, 50.0]
+    zs = [0.3, 0.7 * alpha, alpha, 1.2 * alpha] if alpha < 100 else [0.3, 1.0, 50.0, 80.0]
     pts = [c + z * a for z in zs]  # on the axis, including the central focus
     pts += [c + z * a + 1e-7 * eu for z in zs]  # next to it
     return np.array(pts)

@@ -1,0 +1,67 @@
+"""Caustic spot lights as a rendering method: a glass sphere against the reference."""
+
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from scipy.ndimage import gaussian_filter
+
+import jaxcaustics as jc
+from jaxcaustics import reference
+
+
+def sphere_scene(zenith=20.0, azimuth=0.0, shape=(48, 48), occluders=()):
+    """A glass ball (radius 0.3 m, n = 1.5, centre 1 m up) over a 2 x 2 m floor."""
+    return jc.EllipsoidScene(
+        jc.Ellipsoid.sphere([0.0, 0.0, 1.0], 0.3),
+        jc.DirectionalLight.from_angles(zenith, azimuth),
+        jc.PlaneReceiver((-1.2, 0.8, -1.0, 1.0), shape),
+        ior=1.5,
+        occluders=occluders,
+    )
+
+
+def relative_l1(image, ref, blur_px=1.0):
+    """``sum |blur(image) - blur(ref)| / sum blur(ref)``, Gaussian blur of `blur_px`
+    pixels (zero outside the receiver)."""
+    a = gaussian_filter(np.asarray(image, float), blur_px, mode="constant")
+    b = gaussian_filter(np.asarray(ref, float), blur_px, mode="constant")
+    return float(np.abs(a - b).sum() / b.sum())
+
+
+def test_render_dispatches_and_checks_the_scene():
+    scene = sphere_scene(shape=(8, 8))
+    lights = jc.SpotLights(
+        [[0.0, 0.0, 1.0]], [[0.0, 0.0, -1.0]], [[1.0, 0.0, 0.0]], [0.5], [0.0], [0.3],
+        np.ones((1, 8, 8)),
+    )
+    image, stats = jc.render(scene, lights=lights, samples=1, return_stats=True)
+    assert image.shape == (8, 8) and float(jnp.sum(image)) > 0
+    assert int(stats["lights"][0]) == 1
+    mesh = jc.MeshScene(
+        jc.Ellipsoid.sphere([0.0, 0.0, 1.0], 0.3).to_mesh(1),
+        jc.DirectionalLight.from_angles(10.0),
+        jc.PlaneReceiver((-1.0, 1.0, -1.0, 1.0), (8, 8)),
+        occluders=[jc.Ellipsoid.sphere([0.0, 0.0, 0.5], 0.1).to_mesh(1)],
+    )
+    with pytest.raises(ValueError, match="occluders"):
+        jc.spot_lights(mesh)
+    with pytest.raises(ValueError, match="lights"):
+        jc.spot_lights(scene, lights=lights, max_lights=3)
+    with pytest.raises(ValueError, match="scene"):
+        jc.spot_lights(object())
+
+
+@pytest.mark.slow
+def test_sphere_caustic_agrees_with_the_reference_at_a_fitted_direction():
+    """The lights fitted for this very light direction. Tolerance 0.08 in relative L1
+    after a 1-pixel blur (48 x 48 pixels of 4 cm; reference 1024^2 photons, its own
+    error about 0.01): the spot lights model each bundle by a radially symmetric focus
+    law and a 64^2 light-plane image splatted with 3-ray-spacing splats, which smears
+    the sharp rim of the ball's caustic by a few centimetres (Liu et al. report visual,
+    not numerical, agreement)."""
+    scene = sphere_scene()
+    result = jc.spot_lights(scene, rays_per_axis=128, max_lights=8)
+    ref = reference.trace_ellipsoid(scene, 1024)
+    error = relative_l1(result.image, ref)
+    assert error < 0.08, error
+    assert float(result.missed_flux_fraction[0]) <= 0.05 + 1e-9
