@@ -36,6 +36,7 @@ import numpy as np
 import optimistix as optx
 from jaxtyping import Array, Float, Int
 
+from ._ellipsoid import ExitRays
 from ._light_view import orthonormal_basis
 from ._scene import _as_float_array, _check_finite, _is_concrete
 from ._spot_lights import SpotLights
@@ -79,23 +80,10 @@ SPLAT_MARGIN_PIXELS = 3
 """Pixels kept free around the outermost splat centre (with three footprint radii)."""
 
 
-class RaySet(eqx.Module):
-    """Rays leaving a caustic object (the fields of the ray tracer's ``ExitRays``).
-
-    - `origin`: ``(R, 3)`` ray origins ``q``, metres.
-    - `direction`: ``(R, 3)`` unit directions ``d``.
-    - `energy`: ``(R,)`` energy each ray carries, ``>= 0`` (0: an invalid ray).
-    - `spacing`: ``()`` emission grid spacing, metres (sets the splat radius).
-    - `centre`: ``(3,)`` centre of the object's bounding box, metres.
-    - `size`: ``()`` largest side of the object's bounding box, metres.
-    """
-
-    origin: Float[Array, "R 3"]
-    direction: Float[Array, "R 3"]
-    energy: Float[Array, " R"]
-    spacing: Float[Array, ""]
-    centre: Float[Array, "3"]
-    size: Float[Array, ""]
+RaySet = ExitRays
+"""Rays leaving a caustic object: the ray tracer's `ExitRays` (origin ``(R, 3)``, unit
+direction ``(R, 3)``, energy ``(R,)`` (0: an invalid ray), emission grid `spacing`, the
+object's bounding-box `centre` ``(3,)`` and `size`, metres)."""
 
 
 class FitInfo(eqx.Module):
