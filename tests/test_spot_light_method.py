@@ -98,3 +98,25 @@ def test_sphere_caustic_from_interpolated_lights_agrees_with_the_reference():
         error, direct_error = relative_l1(image, ref), relative_l1(direct, ref)
         assert error < 0.08, (direction, error)
         assert error < direct_error + 0.02, (direction, error, direct_error)
+
+
+@pytest.mark.slow
+def test_mesh_made_with_trimesh_against_the_mesh_reference():
+    """The same ball as a trimesh icosphere (642 vertices, smooth normals) in a
+    MeshScene: rays traced through the mesh, lights fitted, image against the mesh
+    reference. Tolerance 0.1 (the sphere's 0.08 plus the mesh tracer's 48^2-ray grid:
+    coarser splats)."""
+    import trimesh
+
+    ball = trimesh.creation.icosphere(subdivisions=3, radius=0.3)
+    ball.apply_translation([0.0, 0.0, 1.0])
+    scene = jc.MeshScene(
+        jc.Mesh.from_trimesh(ball),
+        jc.DirectionalLight.from_angles(20.0),
+        jc.PlaneReceiver((-1.2, 0.8, -1.0, 1.0), (48, 48)),
+        ior=1.5,
+    )
+    result = jc.spot_lights(scene, rays_per_axis=48, max_lights=4)
+    ref = reference.trace_mesh(scene, 512)
+    error = relative_l1(result.image, ref)
+    assert error < 0.1, error
