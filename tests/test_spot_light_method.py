@@ -58,7 +58,7 @@ def test_sphere_caustic_agrees_with_the_reference_at_a_fitted_direction():
     error about 0.01): the spot lights model each bundle by a radially symmetric focus
     law and a 64^2 light-plane image splatted with 3-ray-spacing splats, which smears
     the sharp rim of the ball's caustic by a few centimetres (Liu et al. report visual,
-    not numerical, agreement)."""
+    not numerical, agreement). Measured: 0.057 (60-degree bundles)."""
     scene = sphere_scene()
     result = jc.spot_lights(scene, rays_per_axis=128, max_lights=8)
     ref = reference.trace_ellipsoid(scene, 1024)
@@ -105,7 +105,7 @@ def test_mesh_made_with_trimesh_against_the_mesh_reference():
     """The same ball as a trimesh icosphere (642 vertices, smooth normals) in a
     MeshScene: rays traced through the mesh, lights fitted, image against the mesh
     reference. Tolerance 0.1 (the sphere's 0.08 plus the mesh tracer's 48^2-ray grid:
-    coarser splats)."""
+    coarser splats; measured 0.052)."""
     import trimesh
 
     ball = trimesh.creation.icosphere(subdivisions=3, radius=0.3)
