@@ -739,9 +739,16 @@ def map_sharded(
     chunk: int | None = None,
     progress: bool = False,
     desc: str | None = None,
+    per_device: str | None = None,
 ):
-    """``jax.vmap(fn, in_axes=(None, 0))(shared, batch)`` over the leading axis of `batch`,
-    sharded across `devices` and run in chunks; results are gathered to the host.
+    """``fn(shared, item)`` for every item along the leading axis of `batch`, sharded
+    across `devices` and run in chunks; results are gathered to the host.
+
+    `per_device` (default ``"vmap"`` on GPU/TPU, ``"map"`` on CPU): ``"vmap"`` vectorises
+    a chunk placed with a `NamedSharding` over the devices (XLA splits the work along the
+    sharded axis); ``"map"`` gives each device its contiguous share of the chunk and runs
+    it item after item with ``jax.lax.map`` (on a CPU the fit runs 2-4x faster per item
+    than vmapped, where every while-loop and branch waits for the slowest item).
 
     The devices form a one-axis `jax.sharding.Mesh` named `MESH_AXIS`; each chunk of
     `batch` is placed with ``NamedSharding(mesh, PartitionSpec(MESH_AXIS))`` (split along
@@ -778,17 +785,43 @@ def map_sharded(
     replicated = NamedSharding(mesh, PartitionSpec())
     shared = jax.tree.map(lambda x: jax.device_put(x, replicated) if eqx.is_array(x) else x, shared)
 
-    @eqx.filter_jit
-    def run(shared, piece):
-        out = jax.vmap(fn, in_axes=(None, 0))(shared, piece)
+    if per_device is None:
+        per_device = "map" if devices[0].platform == "cpu" else "vmap"
+    if per_device not in ("map", "vmap"):
+        raise ValueError(f"`per_device` must be 'map' or 'vmap', got {per_device!r}")
+    arrays, static = eqx.partition(shared, eqx.is_array)
+
+    @jax.jit
+    def run_vmap(arrays, piece):
+        out = jax.vmap(fn, in_axes=(None, 0))(eqx.combine(arrays, static), piece)
         return jax.lax.with_sharding_constraint(out, split)
+
+    @jax.jit
+    def run_map(arrays, piece):
+        return jax.lax.map(lambda item: fn(eqx.combine(arrays, static), item), piece)
+
+    def run(piece):
+        if per_device == "vmap":
+            return jax.device_get(run_vmap(arrays, jax.device_put(piece, split)))
+        # each device maps over its contiguous share of the chunk; the calls are
+        # dispatched asynchronously, so the devices work at the same time
+        share = chunk // n_dev
+        outs = [
+            run_map(
+                jax.device_put(arrays, device),
+                jax.device_put(
+                    jax.tree.map(lambda x, k=k: x[k * share : (k + 1) * share], piece), device
+                ),
+            )
+            for k, device in enumerate(devices)
+        ]
+        return jax.tree.map(lambda *xs: np.concatenate(xs), *jax.device_get(outs))
 
     from tqdm.auto import tqdm
 
     outputs = []
     for start in tqdm(range(0, padded, chunk), desc=desc, disable=not progress, unit="chunk"):
-        piece = jax.tree.map(lambda x, s=start: jax.device_put(x[s : s + chunk], split), batch)
-        outputs.append(jax.device_get(run(shared, piece)))
+        outputs.append(run(jax.tree.map(lambda x, s=start: x[s : s + chunk], batch)))
     return jax.tree.map(lambda *xs: np.concatenate(xs)[:n], *outputs)
 
 
@@ -890,6 +923,7 @@ def precompute_spot_lights(
     devices: Sequence[jax.Device] | None = None,
     chunk: int | None = None,
     progress: bool = True,
+    per_device: str | None = None,
     **fit_knobs,
 ) -> SpotLightTable:
     """The per-scene phase of Sect. 4: CSL sets for the icosphere's directions, tracked
@@ -919,6 +953,8 @@ def precompute_spot_lights(
     - `devices`: devices to shard over (default `jax.devices()`).
     - `chunk`: directions (or directed edges) per batch; default 4 per device.
     - `progress`: tqdm progress bars over the chunks.
+    - `per_device`: ``"map"`` (items one after the other on each device; the default on
+      CPU) or ``"vmap"`` (vectorised; the default on GPU/TPU); see `map_sharded`.
     - `fit_knobs`: keyword arguments of `fit_spot_lights` (``max_lights``, ...).
     """
     subdivisions = _check_count(subdivisions, "subdivisions", 0)
@@ -946,6 +982,7 @@ def precompute_spot_lights(
         chunk=chunk,
         progress=progress,
         desc="CSL sets",
+        per_device=per_device,
     )
     centre, size = centres[0], float(sizes[0])
     knobs = _default_refine_knobs(fit_knobs, size) if refine_knobs is None else refine_knobs
@@ -969,6 +1006,7 @@ def precompute_spot_lights(
         chunk=chunk,
         progress=progress,
         desc="tracking",
+        per_device=per_device,
     )
     e = len(edges)
     moved_origin = np.stack([moved_origin[:e], moved_origin[e:]], axis=1)
