@@ -157,6 +157,7 @@ def test_energy_fraction_stops_early():
     np.testing.assert_allclose(info.fraction, share, rtol=1e-12)
 
 
+@pytest.mark.slow  # 8-10 s of compilation; the default run covers the fit unbatched
 def test_vmap_and_jit_equal_single_calls():
     rays, _ = two_lights()
     other = exit_rays(*csl_rays(1.5, 0.8, CENTRE, AXIS), centre=CENTRE)

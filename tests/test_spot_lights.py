@@ -95,9 +95,10 @@ def cross_section_density(light, x):
 @pytest.mark.parametrize(
     "beta,z,rho_range,rays",
     [
-        (0.5, 0.4, (0.02, 0.15), 1),  # before every focus: one ray (r1)
+        # before every focus: one ray (r1); the slow ones keep the default run short
+        pytest.param(0.5, 0.4, (0.02, 0.15), 1, marks=pytest.mark.slow),
         (2.0, 0.7, (0.002, 0.012), 3),  # among the foci, inside the fold: r1, r2, r3
-        (2.0, 0.7, (0.02, 0.05), 1),  # among the foci, outside the fold: r3 only
+        pytest.param(2.0, 0.7, (0.02, 0.05), 1, marks=pytest.mark.slow),  # outside the fold
         (0.5, 1.6, (0.02, 0.15), 1),  # past every focus: r3
     ],
 )
