@@ -449,12 +449,13 @@ SHARDING_SCRIPT = textwrap.dedent(
 
     shared = np.linspace(-1.0, 1.0, 12).reshape(3, 4)
     batch = {"x": np.random.default_rng(0).normal(size=(10, 3)), "t": np.arange(10.0)}
-    sharded = map_sharded(fn, shared, batch, chunk=6)
-    single = map_sharded(fn, shared, batch, devices=jax.devices()[:1], chunk=3)
     direct = jax.vmap(fn, in_axes=(None, 0))(shared, batch)
-    for key in ("y", "n"):
-        np.testing.assert_allclose(sharded[key], single[key], rtol=1e-12, atol=1e-14)
-        np.testing.assert_allclose(sharded[key], direct[key], rtol=1e-12, atol=1e-14)
+    for mode in ("map", "vmap"):  # per device item by item, or vectorised under sharding
+        sharded = map_sharded(fn, shared, batch, chunk=6, per_device=mode)
+        single = map_sharded(fn, shared, batch, devices=jax.devices()[:1], chunk=3)
+        for key in ("y", "n"):
+            np.testing.assert_allclose(sharded[key], single[key], rtol=1e-12, atol=1e-14)
+            np.testing.assert_allclose(sharded[key], direct[key], rtol=1e-12, atol=1e-14)
     # a chunk really is split across the four devices
     from jax.sharding import Mesh, NamedSharding, PartitionSpec
     mesh = Mesh(np.asarray(jax.devices()), ("directions",))
