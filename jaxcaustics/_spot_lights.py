@@ -397,9 +397,23 @@ def shade_points(
         )
     if shading is not None and not isinstance(shading, (Lambertian, Glossy)):
         raise ValueError(f"`shading` must be None, Lambertian or Glossy, got {shading!r}")
-    occluders = tuple(occluders)
+    if not max_gain > 0:
+        raise ValueError(f"`max_gain` must be positive, got {max_gain}")
+    if not axis_epsilon > 0:
+        raise ValueError(f"`axis_epsilon` must be positive, got {axis_epsilon}")
+    options = (float(max_gain), float(axis_epsilon), bool(intensity_correction))
+    return _shade_points(lights, points, normals, shading, tuple(occluders), options)
 
-    def one_light(total, light):
+
+@eqx.filter_jit
+def _shade_points(lights, points, normals, shading, occluders, options):
+    """`shade_points`, compiled once per shape and set of options: a scan over the
+    lights whose inactive slots skip the work (`lax.cond`)."""
+    max_gain, axis_epsilon, intensity_correction = options
+    dtype = jnp.result_type(points.dtype, lights.origin.dtype)
+    zeros = jnp.zeros(points.shape[:1], dtype)
+
+    def contribution(light):
         light = jax.tree.map(lambda a: a[None], light)
         rays = evaluate_spot_lights(
             light,
@@ -426,10 +440,13 @@ def shade_points(
             value = shading.albedo / jnp.pi * arriving
         else:
             value = arriving
-        return total + jnp.sum(value, axis=-1), None
+        return jnp.sum(value, axis=-1).astype(dtype)
 
-    dtype = jnp.result_type(points.dtype, lights.origin.dtype)
-    total, _ = jax.lax.scan(one_light, jnp.zeros(points.shape[:1], dtype), lights)
+    def one_light(total, light):
+        added = jax.lax.cond(light.active, contribution, lambda _: zeros, light)
+        return total + added, None
+
+    total, _ = jax.lax.scan(one_light, zeros, lights)
     return total
 
 
