@@ -330,6 +330,7 @@ def test_vmap_over_directions_equals_separate_calls_for_a_mesh_scene():
         assert float(one.sum()) > 0.3
 
 
+@pytest.mark.slow  # 5-7 s of compilation; keeps the default run under 10 minutes
 def test_gradient_matches_central_differences():
     """d/d(center, radii) of a smooth functional of the exit rays against central
     differences (step 1e-6, float64: truncation ~1e-12, rounding ~1e-10 relative). The

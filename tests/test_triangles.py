@@ -364,6 +364,7 @@ def deep_shadow():
     return (x > 0.4) & (x < 0.85) & (np.abs(y) < 0.7)
 
 
+@pytest.mark.slow  # about 20 s; keeps the default run under 10 minutes
 def test_distance_map_projection_does_not_leak_behind_occluders():
     from jaxcaustics._methods.triangles import CubeMapOptions
 
