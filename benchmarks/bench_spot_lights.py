@@ -15,7 +15,8 @@ run in float32, also in a test session with JAX's x64 on):
 - ``error``: the error of `spot_lights` (256^2 rays, 2 x 2 samples per pixel) on a 2 x 2
   m receiver of 128 x 128 pixels against the reference (`reference.trace_ellipsoid`,
   2048^2 photons, float64) as a function of ``max_lights`` and of ``energy_fraction``,
-  with the reference's own time;
+  with the reference's own time; timed: the fit on the traced rays and the rendering
+  under `jax.jit`;
 - ``precompute``: `precompute_spot_lights` (the per-scene phase of Sect. 4: a CSL set per
   icosphere direction, tracking along every edge both ways, matching and triples) for
   42 directions (subdivisions=1), with its phases; the 162-direction run (subdivisions=2,
@@ -30,11 +31,14 @@ Time: median of repeated calls after a first one (which compiles), with
 Writes ``spot_lights.md`` (tables; the raw rows as JSON in an HTML comment at its end)
 and ``spot_lights_error.png`` to ``--output`` (default ``benchmarks/results/``).
 
-    python benchmarks/bench_spot_lights.py                  # full run (long on 2 cores)
+    python benchmarks/bench_spot_lights.py                  # full run (~75 min on 2 cores)
     python benchmarks/bench_spot_lights.py --quick          # tiny sizes, to check it runs
     python benchmarks/bench_spot_lights.py --parts precompute  # one part; the others are
                                                             # kept from the existing .md
     python benchmarks/bench_spot_lights.py --report-only    # redo .md and .png from the .md
+
+``--keep-previous-precompute`` (with ``--parts precompute``) keeps the precomputation
+already in the .md as earlier runs, for comparison (an earlier library version, say).
 """
 
 from __future__ import annotations
