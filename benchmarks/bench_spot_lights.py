@@ -1002,7 +1002,8 @@ def main(argv=None) -> None:
         data = read_json(md)
         if "precompute" in data["parts"]:
             part = redo_estimates(data["parts"]["precompute"])
-            part["previous"] = [redo_estimates(x) for x in part.get("previous", [])]
+            if "previous" in part:
+                part["previous"] = [redo_estimates(x) for x in part["previous"]]
             data["parts"]["precompute"] = part
         print(write_report(data, args.out))
         return
