@@ -10,8 +10,8 @@ run in float32, also in a test session with JAX's x64 on):
   to 16 lights, 95% of the energy, 64^2 light-plane images), for several N (the paper
   traces 1280^2); the tracing alone is timed too;
 - ``eval``: the time to render an 800 x 600 receiver (``samples=1``) from a fitted set,
-  `render_spot_lights` as called (its light loop is a `lax.scan`) and under `jax.jit`,
-  with the set's 16 slots and with its active lights only;
+  `render_spot_lights` as called and under `jax.jit`, with the set's 16 slots and with
+  its active lights only;
 - ``error``: the error of `spot_lights` (256^2 rays, 2 x 2 samples per pixel) on a 2 x 2
   m receiver of 128 x 128 pixels against the reference (`reference.trace_ellipsoid`,
   2048^2 photons, float64) as a function of ``max_lights`` and of ``energy_fraction``,
@@ -31,7 +31,7 @@ Time: median of repeated calls after a first one (which compiles), with
 Writes ``spot_lights.md`` (tables; the raw rows as JSON in an HTML comment at its end)
 and ``spot_lights_error.png`` to ``--output`` (default ``benchmarks/results/``).
 
-    python benchmarks/bench_spot_lights.py                  # full run (~75 min on 2 cores)
+    python benchmarks/bench_spot_lights.py                  # full run (25-60 min, 2 cores)
     python benchmarks/bench_spot_lights.py --quick          # tiny sizes, to check it runs
     python benchmarks/bench_spot_lights.py --parts precompute  # one part; the others are
                                                             # kept from the existing .md
@@ -172,9 +172,17 @@ def timed(fn, repeats=5, first=None, budget_s=30.0, long_s=120.0):
     return first, statistics.median(times), len(times)
 
 
-def _part_meta(start_wall, start_load):
+def _start():
+    """Wall time, load and library commit at the start of a part (the commit is read at
+    the start: the code is imported then, and a shared checkout may move on during a
+    long run)."""
+    return time.time(), (load(), git_commit())
+
+
+def _part_meta(start_wall, start):
+    start_load, commit = start
     return dict(
-        commit=git_commit(),
+        commit=commit,
         started=time.strftime("%Y-%m-%d %H:%M:%S", time.localtime(start_wall)),
         elapsed_s=time.time() - start_wall,
         load_before=start_load,
@@ -187,7 +195,7 @@ def _part_meta(start_wall, start_load):
 
 def part_fit(config):
     """Trace + fit for one light direction, at each ray count."""
-    start_wall, start_load = time.time(), load()
+    start_wall, start_load = _start()
     scene = sphere_scene()
     rows, sets = [], {}
     for n in config["fit_rays"]:
@@ -226,7 +234,7 @@ def part_fit(config):
 
 def part_eval(config, lights):
     """Render an 800 x 600 receiver from one fitted set (16 slots, and active only)."""
-    start_wall, start_load = time.time(), load()
+    start_wall, start_load = _start()
     rows_, cols_ = config["eval_shape"]
     half = cols_ / rows_  # square pixels: 2 m tall, 2 cols/rows m wide
     receiver = jc.PlaneReceiver(np.asarray((-half, half, -1.0, 1.0), np.float32), (rows_, cols_))
@@ -271,7 +279,7 @@ def part_error(config):
     `fit_spot_lights` on the traced rays (jitted inside the library) and
     `render_spot_lights` of the fitted set under `jax.jit` (see section 2 on why not as
     called)."""
-    start_wall, start_load = time.time(), load()
+    start_wall, start_load = _start()
     p = config["error_pixels"]
     scene = sphere_scene((p, p))
     start = time.perf_counter()
@@ -431,6 +439,7 @@ def per_device_path() -> str:
 
 def run_precompute(scene, subdivisions, settings, log=print):
     """One timed `precompute_spot_lights` call and its phases."""
+    commit = git_commit()
     with _PhaseClock(log) as clock:
         start_load = load()
         start = time.perf_counter()
@@ -461,7 +470,7 @@ def run_precompute(scene, subdivisions, settings, log=print):
         mean_triples=float(np.asarray(table.triple_active).sum(axis=1).mean()),
         dtype=str(table.lights.origin.dtype),
         per_device=per_device_path(),
-        commit=git_commit(),
+        commit=commit,
         load_before=start_load,
         load_after=load(),
         estimate=False,
@@ -520,7 +529,7 @@ def redo_estimates(part):
 
 
 def part_precompute(config, limit_min, log=print):
-    start_wall, start_load = time.time(), load()
+    start_wall, start_load = _start()
     settings = {k: v for k, v in config["precompute"].items() if k != "limit_min"}
     scene = sphere_scene()
     runs = []
@@ -594,8 +603,8 @@ def fit_section(part, meta, parts=None) -> str:
         f" direction ({ZENITH_DEG:g} degrees), {rows[0]['dtype']}; time per direction ="
         " median of `runs` calls after a first (compiling) one; `compile s` = first call"
         " minus the median (the fit compiles once per ray count; `below noise`: the first"
-        " call was not slower than the median, the compilation, about 10 s at smaller N,"
-        " being within the run-to-run spread of such long calls). `trace ms`: the tracing"
+        " call was not measurably slower than the median, the compilation being within"
+        " the run-to-run spread of such long calls). `trace ms`: the tracing"
         " alone (already in the total). `exiting`: rays that leave the ball (the grid"
         " covers its bounding sphere); `energy held`: `FitInfo.fraction`; `discarded`:"
         " energy set aside by slots that found no bundle. " + _load_text(part) + "\n\n",
@@ -625,17 +634,14 @@ def eval_section(part, meta, parts=None) -> str:
         f" {', '.join(f'{x:.3g}' for x in part['extent'])} m), with the set fitted in"
         f" section 1 at {part['set_rays']}^2 rays: {r0['active']} active lights in"
         f" {r0['slots']} slots, {part['resolution']}^2 light-plane images, {r0['dtype']}."
-        " The lights are a `lax.scan` over the slots, inactive ones included, so the cost"
-        " follows the slot count; `active only` renders the same set cut to its active"
-        " lights (`lights[active]`), the same image. `as called`: the public function"
-        " as it is, not jitted: its `lax.scan` over a closure made anew at every call is"
-        " traced and XLA-compiled again at every call (seen with `jax_log_compiles`), so"
-        " this time is mostly compilation, and so is most of an un-jitted `spot_lights`"
-        " call's rendering; `jax.jit`: the same call under `jax.jit`, compiled once. Time:"
-        " median of `runs` calls after the first, `block_until_ready`. "
-        + _load_text(part)
-        + "\n\n",
-        "| lights rendered | slots scanned | call | time ms | compile s | runs |\n",
+        " `all slots`: the set as fitted (`max_lights` slots, inactive ones included);"
+        " `active only`: the same set cut to its active lights (`lights[active]`, the same"
+        " image), to show what the inactive slots cost. `as called`: the public function"
+        " as it is (not under `jax.jit`; whatever it traces or compiles per call is in"
+        " the time); `jax.jit`: the same call under `jax.jit`. Time: median of `runs`"
+        " calls after the first, `block_until_ready`; `compile s`: first call minus the"
+        " median. " + _load_text(part) + "\n\n",
+        "| lights rendered | slots | call | time ms | compile s | runs |\n",
         "|---|--:|---|--:|--:|--:|\n",
     ]
     for r in part["rows"]:
@@ -693,7 +699,7 @@ def error_section(part, meta, parts=None) -> str:
             f" `fit_spot_lights(rays, max_lights=K, energy_fraction=f)` on the {part['rays']}^2"
             " traced rays (the tracing is in section 1; every `max_lights` compiles anew, a"
             " static knob; `energy_fraction` does not); `render ms`: `render_spot_lights` of"
-            " the fitted set (`samples=2`, all `max_lights` slots scanned) under `jax.jit`;"
+            " the fitted set (`samples=2`, the set's `max_lights` slots) under `jax.jit`;"
             " `cached`: compiled earlier in the run. Fit and render in"
             f" {part['by_lights'][0]['dtype']}. " + _load_text(part) + "\n\n",
             f"Reference: {ref['truth']}^2 photons took {ref['truth_s']:.1f} s (NumPy,"
@@ -914,9 +920,10 @@ NOTES = """
   bundles' ray assignment and the rasterisation touch every traced ray for every light
   slot, so their cost grows with the traced rays times the slots used. Under `vmap`
   (precomputation) a batch's while loops run until the slowest member is done.
-- Rendering scans every light slot, active or not, and is not jitted by the library:
-  wrap `render_spot_lights` (or `spot_lights` with given `lights`) in `jax.jit` for
-  per-frame use (section 2).
+- Section 2 shows what inactive light slots and calling the renderer outside `jax.jit`
+  cost at the commit it ran at (the library's rendering changed in `f48f552`: compiled
+  once per shape, inactive slots skipped; runs before it scanned every slot and
+  recompiled at every un-jitted call).
 """
 
 
@@ -928,9 +935,9 @@ def write_report(data, out: Path) -> str:
         f" Device: `{meta['device']}` ({meta['cpus']} CPU cores, {meta['machine']}), JAX"
         f" {meta['jax']}; **float32** scene arrays, fit and rendering (the reference is"
         " float64)."
-        + (f" Library at commit `{meta['commit']}`." if meta.get("commit") else "")
-        + " The machine was shared with other jobs: each section gives the load average"
-        " (`os.getloadavg()`) before and after it.\n\n",
+        + " Sections can come from separate runs (`--parts`): each gives the commit it ran"
+        " at and the load average (`os.getloadavg()`) before and after it; the machine"
+        " was shared with other jobs.\n\n",
         f"Scene: `EllipsoidScene(Ellipsoid.sphere({CENTRE}, {RADIUS}),"
         f" DirectionalLight.from_angles({ZENITH_DEG:g}), PlaneReceiver(...), ior=1.5)`:"
         " a glass ball of radius 0.3 m, centre 1 m above the receiver (z = 0), light"
@@ -1032,11 +1039,11 @@ def main(argv=None) -> None:
                 previous = kept.pop("previous", []) + [kept]
     print(f"device: {meta['device']}; load {load()}", flush=True)
     sets = None
-    if "fit" in parts or "eval" in parts:
-        fit_config = config if "fit" in parts else dict(config, fit_rays=[config["eval_set_rays"]])
-        fit, sets = part_fit(fit_config)
-        if "fit" in parts:
-            data["parts"]["fit"] = fit
+    if "fit" in parts:
+        data["parts"]["fit"], sets = part_fit(config)
+    elif "eval" in parts:  # the set to render, fitted once (untimed)
+        n = config["eval_set_rays"]
+        sets = {n: jc.fit_spot_lights(jc.trace_exit_rays(sphere_scene(), n))[0]}
     if "eval" in parts:
         data["parts"]["eval"] = part_eval(config, sets[config["eval_set_rays"]])
     if "error" in parts:
