@@ -20,6 +20,24 @@ water surface from its caustic).
 
 import importlib.metadata
 
+from ._choose import (
+    Choice as Choice,
+)
+from ._choose import (
+    accuracy_table as accuracy_table,
+)
+from ._choose import (
+    choose_method as choose_method,
+)
+from ._choose import (
+    image_error as image_error,
+)
+from ._choose import (
+    method_support as method_support,
+)
+from ._choose import (
+    reference_image as reference_image,
+)
 from ._ellipsoid import (
     Ellipsoid as Ellipsoid,
 )

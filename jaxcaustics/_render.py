@@ -2,15 +2,19 @@
 
 from __future__ import annotations
 
+import logging
 from typing import Any
 
 from jaxtyping import Array
 
+from ._choose import DEFAULT_MARGIN, as_mesh_scene, choose_method
 from ._methods.caustic_map import adaptive_caustic_map, caustics_mapping
 from ._methods.spot_lights import spot_lights
 from ._methods.triangles import caustic_triangles
 from ._methods.twopass import two_pass
 from ._scene import WaterScene
+
+logger = logging.getLogger("jaxcaustics")
 
 METHODS = {
     "twopass": two_pass,
@@ -29,7 +33,13 @@ DEFAULT_METHOD = {
 
 
 def render(
-    scene: WaterScene, method: str | None = None, *, return_stats: bool = False, **knobs: Any
+    scene: WaterScene,
+    method: str | None = None,
+    *,
+    tolerance: float | None = None,
+    margin: float = DEFAULT_MARGIN,
+    return_stats: bool = False,
+    **knobs: Any,
 ):
     """Render the caustics of `scene` on its receiver.
 
@@ -43,6 +53,12 @@ def render(
       lights; ellipsoid and mesh scenes). Default: the scene's natural method
       (``"twopass"`` for water, ``"spot_lights"`` for ellipsoids, ``"triangles"``
       otherwise).
+    - `tolerance`: instead of naming knobs, ask for an error against the reference
+      (relative L1 after a 1-pixel Gaussian blur of both images): the fastest measured
+      method and knobs expected to meet it are picked (`choose_method`; with `method`
+      given, that method's knobs). The choice is logged (logger ``"jaxcaustics"``, level
+      INFO) and, with `return_stats`, returned as ``stats["choice"]`` (a `Choice`: method,
+      knobs, expected error and time). `margin`: see `choose_method`.
     - `return_stats`: also return a dict of diagnostics (``missed_flux_fraction`` per
       channel).
     - `**knobs`: the method's quality knobs (see `two_pass`, `caustic_triangles`,
@@ -52,6 +68,15 @@ def render(
     horizontal plane: ``(rows, cols)`` for a single index of refraction, ``(rows, cols,
     channels)`` for a sequence of indices. With `return_stats`, ``(image, stats)``.
     """
+    choice = None
+    if tolerance is not None:
+        if knobs:
+            raise ValueError(f"`tolerance` picks the knobs: do not pass {sorted(knobs)} with it")
+        choice = choose_method(scene, tolerance, method=method, margin=margin)
+        logger.info("render: %s", choice)
+        method, knobs = choice.method, dict(choice.knobs)
+        if choice.as_mesh:
+            scene = as_mesh_scene(scene, choice.as_mesh["subdivisions"])
     if method is None:
         method = DEFAULT_METHOD.get(type(scene).__name__, "twopass")
     if method not in METHODS:
@@ -60,5 +85,7 @@ def render(
     if return_stats:
         stats: dict[str, Array] = {"missed_flux_fraction": result.missed_flux_fraction}
         stats.update(getattr(result, "stats", {}))
+        if choice is not None:
+            stats["choice"] = choice
         return result.image, stats
     return result.image

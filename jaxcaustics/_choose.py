@@ -1,0 +1,343 @@
+"""Choosing a method and its knobs for an accuracy budget: ``render(scene, tolerance=t)``.
+
+The choice reads accuracy-time tables measured by ``benchmarks/bench_accuracy.py`` and
+stored with the package (``jaxcaustics/data/accuracy.json``): for each scene kind (height-
+field water, lens slab, mesh refractor, moving light) one benchmark scene, and for every
+method and knob setting that runs on it, its error against the NumPy reference (relative
+L1 after a 1-pixel Gaussian blur of both images) and its time per render after
+compilation. Among the settings whose method can do everything the scene calls for
+(`method_support`), the fastest whose measured error times `margin` is within the
+tolerance is picked.
+
+The tables are measurements on one scene per kind and one machine: an error measured on
+the benchmark scene is an estimate for another scene of the same kind (the `margin`
+absorbs some of the difference), and times scale with the receiver's pixel count and the
+machine.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+import json
+import math
+from importlib import resources
+from typing import Any
+
+import numpy as np
+
+from ._ellipsoid import EllipsoidScene
+from ._mesh import MeshScene
+from ._scene import DirectionalLight, LensScene, WaterScene
+
+#: scene type -> the kind of scene its accuracy table was measured on
+SCENE_KINDS = {
+    WaterScene: "water",
+    LensScene: "lens",
+    MeshScene: "mesh",
+    EllipsoidScene: "moving_light",
+}
+#: default safety factor: a setting is chosen only if its measured error times this is
+#: within the tolerance
+DEFAULT_MARGIN = 1.5
+#: a mesh is sphere-like (caustic spot lights apply) if every vertex lies within this
+#: relative distance of the ellipsoid through its principal extents, and that
+#: ellipsoid's longest axis is at most `SPHERE_LIKE_ASPECT` times its shortest
+SPHERE_LIKE_DEVIATION = 0.1
+SPHERE_LIKE_ASPECT = 3.0
+
+
+@dataclasses.dataclass(frozen=True)
+class Choice:
+    """What ``render(scene, tolerance=...)`` picked, and why.
+
+    - `kind`: the scene kind whose table was used (``"water"``, ``"lens"``, ``"mesh"``,
+      ``"moving_light"``).
+    - `method`, `knobs`: what is passed to `render` (knobs resolved for the scene's
+      receiver).
+    - `as_mesh`: ``None``, or ``{"subdivisions": k}`` when an `EllipsoidScene` is
+      rendered as the triangle mesh `Ellipsoid.to_mesh(k)` in a `MeshScene`.
+    - `tolerance`, `margin`: the request.
+    - `expected_error`: the error this setting measured on the kind's benchmark scene.
+    - `expected_time_s`: its measured time per render (after compilation), seconds,
+      scaled by the ratio of the scene's pixel count to the benchmark's (a rough guide:
+      machines differ).
+    - `table_time_s`, `table_pixels`: the measurement as stored.
+    - `candidates`: how many settings of the table the scene's effects allow, and
+      `meeting`: how many of them meet the tolerance.
+    - `excluded`: ``{method: reason}`` for the table's methods the scene rules out.
+    """
+
+    kind: str
+    method: str
+    knobs: dict[str, Any]
+    as_mesh: dict[str, int] | None
+    tolerance: float
+    margin: float
+    expected_error: float
+    expected_time_s: float
+    table_time_s: float
+    table_pixels: tuple[int, int]
+    candidates: int
+    meeting: int
+    excluded: dict[str, str]
+
+    def __str__(self) -> str:
+        knobs = ", ".join(f"{k}={v!r}" for k, v in self.knobs.items())
+        mesh = f" on its {self.as_mesh['subdivisions']}-subdivision mesh" if self.as_mesh else ""
+        return (
+            f"{self.method}({knobs}){mesh} for a {self.kind} scene: expected error "
+            f"{self.expected_error:.3g} (tolerance {self.tolerance:.3g}, margin "
+            f"{self.margin:g}) in about {self.expected_time_s:.3g} s per render after "
+            f"compilation ({self.meeting} of {self.candidates} measured settings meet it)"
+        )
+
+
+def image_error(image, reference, blur: float = 1.0) -> float:
+    """The accuracy tables' error: ``sum |g(image) - g(reference)| / sum g(reference)``,
+    relative L1 after a Gaussian blur ``g`` of `blur` pixels (standard deviation; zero
+    outside the image) of both images.
+
+    **Arguments:** `image`, `reference`: arrays of the same shape ``(rows, cols)`` or
+    ``(rows, cols, channels)`` (channels are blurred separately); `blur` >= 0, pixels.
+    """
+    from scipy.ndimage import gaussian_filter
+
+    a, b = np.asarray(image, dtype=float), np.asarray(reference, dtype=float)
+    if a.shape != b.shape or a.ndim not in (2, 3):
+        raise ValueError(
+            f"`image` {a.shape} and `reference` {b.shape} must have one shape (rows, cols"
+            "[, channels])"
+        )
+    if not (math.isfinite(blur) and blur >= 0):
+        raise ValueError(f"`blur` must be a number >= 0, got {blur!r}")
+    sigma = (blur, blur, 0.0)[: a.ndim]
+    ga = gaussian_filter(a, sigma, mode="constant")
+    gb = gaussian_filter(b, sigma, mode="constant")
+    total = np.abs(gb).sum()
+    if not total > 0:
+        raise ValueError("`reference` is black: the relative error is undefined")
+    return float(np.abs(ga - gb).sum() / total)
+
+
+def reference_image(scene, **knobs) -> np.ndarray:
+    """The NumPy reference's image of `scene`, float64: `reference.trace_water`,
+    `trace_lens`, `trace_mesh` or `trace_ellipsoid` by the scene's kind, with `knobs`
+    (``photons_per_axis``: per pixel side for water, across the object otherwise)."""
+    from . import reference
+
+    tracer = {
+        "water": reference.trace_water,
+        "lens": reference.trace_lens,
+        "mesh": reference.trace_mesh,
+        "moving_light": reference.trace_ellipsoid,
+    }[scene_kind(scene)]
+    return np.asarray(tracer(scene, **knobs))
+
+
+@functools.cache
+def _packaged_table() -> dict:
+    text = resources.files("jaxcaustics").joinpath("data/accuracy.json").read_text()
+    return json.loads(text)
+
+
+def accuracy_table() -> dict:
+    """The stored accuracy-time table (see ``benchmarks/bench_accuracy.py``), as a dict:
+    ``table["kinds"][kind]["rows"]`` are the measured settings of that scene kind."""
+    return _packaged_table()
+
+
+def scene_kind(scene) -> str:
+    """The kind of `scene` for the accuracy tables (see `SCENE_KINDS`)."""
+    for cls, kind in SCENE_KINDS.items():
+        if isinstance(scene, cls):
+            return kind
+    raise ValueError(
+        "`scene` must be a WaterScene, LensScene, MeshScene or EllipsoidScene, got "
+        f"{type(scene).__name__}"
+    )
+
+
+def _sphere_like(vertices: np.ndarray) -> str | None:
+    # the principal extents of the vertices give the ellipsoid they should lie on
+    """``None`` if the points lie on an ellipsoid of moderate aspect (whose refracted rays
+    focus near moving points), else why not."""
+    centre = vertices.mean(axis=0)
+    local = vertices - centre
+    _, _, axes = np.linalg.svd(local, full_matrices=False)
+    coords = local @ axes.T
+    radii = 0.5 * (coords.max(axis=0) - coords.min(axis=0))
+    if radii.min() <= 0:
+        return "the object is flat"
+    aspect = radii.max() / radii.min()
+    if aspect > SPHERE_LIKE_ASPECT:
+        return f"the object is elongated (aspect {aspect:.3g} > {SPHERE_LIKE_ASPECT:g})"
+    mid = 0.5 * (coords.max(axis=0) + coords.min(axis=0))
+    deviation = np.abs(np.linalg.norm((coords - mid) / radii, axis=1) - 1.0).max()
+    if deviation > SPHERE_LIKE_DEVIATION:
+        return (
+            f"the object is not sphere-like (vertices {deviation:.2g} off the ellipsoid "
+            "through its extents; caustic spot lights need rays focusing near points, "
+            "Liu et al. Sect. 6: a cylinder focuses on a line)"
+        )
+    return None
+
+
+def method_support(method: str, scene) -> str | None:
+    """``None`` if `method` can render everything `scene` calls for, else the reason it
+    cannot (an effect the method does not simulate, or a shape it cannot represent)."""
+    fx = scene.effects
+    if method == "twopass":
+        if not isinstance(scene, WaterScene):
+            return "two-pass caustics take a height-field water surface only"
+        return None
+    if method == "triangles":
+        if isinstance(scene, (LensScene, MeshScene)):
+            return None
+        return "caustic triangles take lens slabs and meshes"
+    if method in ("caustics_mapping", "adaptive"):
+        if not isinstance(scene, MeshScene):
+            return "caustic maps take meshes"
+        if fx.occlusion:
+            return "caustic maps do not test occlusion (the scene has occluders)"
+        if fx.reflection:
+            return "caustic maps refract only (the mesh is a mirror)"
+        return None
+    if method == "spot_lights":
+        if not isinstance(scene, (EllipsoidScene, MeshScene)):
+            return "caustic spot lights take glass ellipsoids and meshes"
+        if not isinstance(scene.light, DirectionalLight):
+            return "caustic spot lights are fitted to parallel light"
+        if isinstance(scene, MeshScene):
+            if fx.reflection:
+                return "caustic spot lights refract only (the mesh is a mirror)"
+            if fx.occlusion:
+                return "caustic spot lights shadow with ellipsoid occluders only"
+            return _sphere_like(np.asarray(scene.generator.vertices, dtype=float))
+        radii = np.asarray(scene.generator.radii, dtype=float)
+        aspect = radii.max() / radii.min()
+        if aspect > SPHERE_LIKE_ASPECT:
+            return f"the ellipsoid is elongated (aspect {aspect:.3g} > {SPHERE_LIKE_ASPECT:g})"
+        return None
+    return f"unknown method {method!r}"
+
+
+def as_mesh_scene(scene: EllipsoidScene, subdivisions: int) -> MeshScene:
+    """`scene` with its ellipsoid (and ellipsoid occluders) as triangle meshes
+    (`Ellipsoid.to_mesh(subdivisions)`), for the mesh methods."""
+    return MeshScene(
+        scene.generator.to_mesh(subdivisions),
+        scene.light,
+        scene.receiver,
+        ior=scene.ior,
+        fresnel=scene.fresnel,
+        interfaces=scene.interfaces,
+        occluders=tuple(o.to_mesh(subdivisions) for o in scene.occluders),
+    )
+
+
+def _resolve_knobs(knobs: dict, shape: tuple[int, int]) -> dict:
+    side = max(shape)
+    return {
+        k: max(1, round(v["per_pixel"] * side)) if isinstance(v, dict) else v
+        for k, v in knobs.items()
+    }
+
+
+def _check_tolerance(tolerance, margin) -> tuple[float, float]:
+    try:
+        t, m = float(tolerance), float(margin)
+    except (TypeError, ValueError) as err:
+        raise ValueError(f"`tolerance` and `margin` must be numbers, got {tolerance!r}") from err
+    if not (math.isfinite(t) and t > 0):
+        raise ValueError(f"`tolerance` must be a positive number, got {tolerance!r}")
+    if not (math.isfinite(m) and m >= 1):
+        raise ValueError(f"`margin` must be a number >= 1, got {margin!r}")
+    return t, m
+
+
+def choose_method(
+    scene,
+    tolerance: float,
+    *,
+    method: str | None = None,
+    margin: float = DEFAULT_MARGIN,
+    table: dict | None = None,
+) -> Choice:
+    """The fastest measured method and knobs expected to render `scene` within
+    `tolerance`.
+
+    **Arguments:**
+
+    - `scene`: a `WaterScene`, `LensScene`, `MeshScene` or `EllipsoidScene`.
+    - `tolerance`: the largest acceptable error against the reference: relative L1
+      after a Gaussian blur of 1 pixel of both images (``sum |blur(image) -
+      blur(reference)| / sum blur(reference)``).
+    - `method`: restrict the choice to one method's knobs.
+    - `margin`: a setting qualifies if its measured error times `margin` is within
+      `tolerance` (>= 1; default 1.5), for scenes harder than the benchmark's.
+    - `table`: an accuracy table in the schema of `accuracy_table()` (default: the
+      stored one).
+
+    **Returns:** a `Choice`. Raises `ValueError` if no setting the scene allows meets
+    the tolerance (naming the smallest error measured) or the scene's kind has no table.
+    """
+    tolerance, margin = _check_tolerance(tolerance, margin)
+    kind = scene_kind(scene)
+    table = accuracy_table() if table is None else table
+    if kind not in table.get("kinds", {}):
+        raise ValueError(f"the accuracy table has no {kind!r} scenes; pass `method=` instead")
+    if isinstance(scene, MeshScene) and scene.effects.reflection:
+        raise ValueError(
+            "the accuracy table's mesh scene is a refractor; mirrors are not measured: pass "
+            "`method=` (e.g. 'triangles') instead of `tolerance`"
+        )
+    entry = table["kinds"][kind]
+    rows = [r for r in entry["rows"] if r.get("choosable", True)]
+    if method is not None:
+        rows = [r for r in rows if r["method"] == method]
+        if not rows:
+            raise ValueError(f"`method` {method!r} has no measured settings for {kind} scenes")
+    excluded: dict[str, str] = {}
+    allowed = []
+    for row in rows:
+        target = scene
+        if row.get("as_mesh"):
+            if not isinstance(scene, EllipsoidScene):
+                continue
+            target = as_mesh_scene(scene, row["as_mesh"]["subdivisions"])
+        reason = method_support(row["method"], target)
+        if reason is None:
+            allowed.append(row)
+        else:
+            excluded.setdefault(row["method"], reason)
+    if not allowed:
+        raise ValueError(f"no measured method can render this {kind} scene: {excluded}")
+    meeting = [r for r in allowed if r["error"] * margin <= tolerance]
+    if not meeting:
+        best = min(allowed, key=lambda r: r["error"])
+        raise ValueError(
+            f"`tolerance` {tolerance:g} is below what any measured setting reaches on "
+            f"{kind} scenes with margin {margin:g}: the smallest error is "
+            f"{best['error']:.3g} ({best['method']} {best['knobs']}); pass a larger "
+            "tolerance, or use the reference tracer"
+        )
+    row = min(meeting, key=lambda r: (r["time_s"], r["error"]))
+    shape = tuple(scene.receiver.shape)
+    table_pixels = tuple(entry["pixels"])
+    scale = (shape[0] * shape[1]) / (table_pixels[0] * table_pixels[1])
+    return Choice(
+        kind=kind,
+        method=row["method"],
+        knobs=_resolve_knobs(row["knobs"], shape),
+        as_mesh=row.get("as_mesh") or None,
+        tolerance=tolerance,
+        margin=margin,
+        expected_error=float(row["error"]),
+        expected_time_s=float(row["time_s"]) * scale,
+        table_time_s=float(row["time_s"]),
+        table_pixels=table_pixels,  # type: ignore[arg-type]
+        candidates=len(allowed),
+        meeting=len(meeting),
+        excluded=excluded,
+    )
