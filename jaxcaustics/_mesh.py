@@ -216,7 +216,7 @@ class MeshScene(eqx.Module):
         return Effects(
             refraction=refractor,
             reflection=not refractor,
-            fresnel=self.fresnel,
+            fresnel=self.fresnel and refractor,  # a mirror's reflectance is taken as 1
             total_internal_reflection=refractor,
             dispersion_channels=len(self.iors),
             occlusion=bool(self.occluders),

@@ -4,11 +4,16 @@ All functions act on the last axis (``(..., 3)`` directions) and broadcast. They
 safe everywhere: at total internal reflection (TIR) and at grazing incidence the values
 *and* gradients are finite (the "double where" pattern: degenerate inputs are replaced
 before a singular operation and the output is selected after it).
+
+TIR is traced only where it can happen: with a concrete index ratio ``eta < 1`` (light
+going into a denser medium) the refracted ray always exists, and neither the TIR test
+nor its guards are traced (`tir_possible`).
 """
 
 from __future__ import annotations
 
 import jax.numpy as jnp
+import numpy as np
 from jaxtyping import Array, Bool, Float
 
 
@@ -21,9 +26,19 @@ def reflect(direction: Float[Array, "... 3"], normal: Float[Array, "... 3"]) -> 
     return direction - 2.0 * _dot(direction, normal)[..., None] * normal
 
 
-def _cos_transmitted(cos_i: Array, eta) -> tuple[Array, Array]:
-    """``cos`` of the refracted angle and the TIR mask (shape of `cos_i`)."""
+def tir_possible(eta) -> bool:
+    """Whether refraction with the index ratio `eta` (``n_incident / n_transmitted``) is
+    traced with a total-internal-reflection test: always, unless `eta` is a concrete
+    number below 1, where ``1 - eta^2 sin^2 >= 1 - eta^2 > 0`` for every angle."""
+    return not (isinstance(eta, (int, float, np.floating)) and eta < 1.0)
+
+
+def _cos_transmitted(cos_i: Array, eta) -> tuple[Array, Array | None]:
+    """``cos`` of the refracted angle and the TIR mask (shape of `cos_i`); the mask is
+    ``None`` where TIR cannot happen (`tir_possible`)."""
     k = 1.0 - eta**2 * (1.0 - cos_i**2)
+    if not tir_possible(eta):
+        return jnp.sqrt(k), None
     tir = k <= 0.0
     k_safe = jnp.where(tir, 1.0, k)
     return jnp.where(tir, 0.0, jnp.sqrt(k_safe)), tir
@@ -36,7 +51,8 @@ def refract_components(direction, normal, eta):
     trailing axis of 3) lets XLA fuse whole-image refraction into one loop.
 
     **Returns:** ``(transmitted, tir, cos_i)``: a 3-tuple of arrays, the TIR mask and
-    the cosine of the angle of incidence (``>= 0``).
+    the cosine of the angle of incidence (``>= 0``). Where TIR is impossible
+    (`tir_possible`) the mask is a constant ``False`` and no TIR test is traced.
     """
     dot = sum(d * n for d, n in zip(direction, normal, strict=True))
     flip = dot > 0.0  # normal on the far side: use its opposite
@@ -44,6 +60,9 @@ def refract_components(direction, normal, eta):
     cos_i = jnp.abs(dot)
     cos_t, tir = _cos_transmitted(cos_i, eta)
     scale = eta * cos_i - cos_t
+    if tir is None:
+        transmitted = tuple(eta * d + scale * n for d, n in zip(direction, normal, strict=True))
+        return transmitted, jnp.zeros(jnp.shape(cos_i), bool), cos_i
     two_cos = 2.0 * cos_i
     transmitted = tuple(
         jnp.where(tir, d + two_cos * n, eta * d + scale * n)
@@ -91,6 +110,8 @@ def fresnel_transmittance(cos_i: Float[Array, ...], eta) -> Float[Array, ...]:
     # R_s and R_p with indices (eta, 1): n1 cos_i vs n2 cos_t, scaled by 1/n2.
     s_num, s_den = eta * cos_i - cos_t, eta * cos_i + cos_t
     p_num, p_den = eta * cos_t - cos_i, eta * cos_t + cos_i
+    if tir is None:  # cos_t >= sqrt(1 - eta^2) > 0: both denominators are positive
+        return 1.0 - 0.5 * ((s_num / s_den) ** 2 + (p_num / p_den) ** 2)
     # both denominators vanish only when cos_i = cos_t = 0 (grazing, nothing transmitted)
     degenerate = (s_den <= 0.0) | (p_den <= 0.0) | tir
     s_den = jnp.where(degenerate, 1.0, s_den)

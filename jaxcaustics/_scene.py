@@ -302,7 +302,9 @@ class WaterScene(eqx.Module):
             refraction=True,
             reflection=False,
             fresnel=self.fresnel,
-            total_internal_reflection=min(self.iors) < 1.0,
+            # possible below index 1; at exactly 1 only for grazing light, which the
+            # refraction kernel still tests for (`tir_possible`)
+            total_internal_reflection=min(self.iors) <= 1.0,
             dispersion_channels=len(self.iors),
             occlusion=False,
             interfaces=1,

@@ -33,7 +33,7 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Float
 
-from .._optics import fresnel_transmittance, refract, refract_components
+from .._optics import fresnel_transmittance, refract, refract_components, tir_possible
 from .._scene import WaterScene
 from .._surface import ray_surface_hit
 
@@ -100,7 +100,9 @@ def prepass(
         normal = (-hx * inv_norm, -hy * inv_norm, inv_norm)
         t_dir, tir, cos_i = refract_components((d[0], d[1], d[2]), normal, eta)
         going_down = t_dir[2] < 0.0
-        valid = ~tir & going_down & (hit_z > 0.0)  # a trough below the ground casts nothing
+        valid = going_down & (hit_z > 0.0)  # a trough below the ground casts nothing
+        if tir_possible(eta):  # water of index < 1 (traced only there)
+            valid = valid & ~tir
         s = hit_z / -jnp.where(going_down, t_dir[2], -1.0)
         ground_x = hit_x + s * t_dir[0]
         ground_y = hit_y + s * t_dir[1]
