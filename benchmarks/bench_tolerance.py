@@ -31,7 +31,7 @@ import numpy as np
 import trimesh
 
 import jaxcaustics as jc
-from jaxcaustics._choose import as_mesh_scene
+from jaxcaustics._choose import as_mesh_scene, resolve_knobs
 
 OUTPUT = Path(__file__).parent / "results"
 
@@ -71,7 +71,7 @@ def held_out_scenes(pixels: int = 32) -> dict:
         ior=1.45,
     )
     ball = jc.EllipsoidScene(
-        jc.Ellipsoid((0.0, 0.05, 1.1), (0.3, 0.26, 0.28)),
+        jc.Ellipsoid((0.0, 0.05, 0.8), (0.3, 0.26, 0.28)),
         jc.DirectionalLight.from_angles(30.0, 60.0),
         jc.PlaneReceiver((-1.2, 1.2, -1.2, 1.2), shape),
         ior=1.5,
@@ -84,9 +84,17 @@ def held_out_scenes(pixels: int = 32) -> dict:
     }
 
 
+def pixels_of(row: dict) -> tuple[int, int]:
+    """The receiver shape a table row was measured at."""
+    for entry in jc.accuracy_table()["kinds"].values():
+        if any(r is row for r in entry["rows"]):
+            return tuple(entry["pixels"])
+    raise ValueError("`row` is not in the accuracy table")
+
+
 def render_row(scene, row: dict):
     """Render `scene` with a table row's method and knobs, as `render(tolerance=)` does."""
-    knobs = jc._choose._resolve_knobs(row["knobs"], tuple(scene.receiver.shape))
+    knobs = resolve_knobs(row["method"], row["knobs"], scene.receiver.shape, pixels_of(row))
     if row.get("as_mesh"):
         scene = as_mesh_scene(scene, row["as_mesh"]["subdivisions"])
     return jc.render(scene, row["method"], **knobs)
@@ -139,7 +147,9 @@ def measure_kind(kind: str, scene, ref_knobs: dict, log=print) -> list[dict]:
             m
             for m in measured
             if m["row"]["method"] == choice.method
-            and jc._choose._resolve_knobs(m["row"]["knobs"], tuple(scene.receiver.shape))
+            and resolve_knobs(
+                m["row"]["method"], m["row"]["knobs"], scene.receiver.shape, pixels_of(m["row"])
+            )
             == choice.knobs
             and (m["row"].get("as_mesh") or None) == choice.as_mesh
         )
