@@ -71,13 +71,38 @@ def _stack_channels(positions, directions, densities, valids, cell_area, dtype) 
     )
 
 
-def _grid(lo_u, hi_u, lo_v, hi_v, shape: tuple[int, int], dtype):
-    """Vertices of a ``rows x cols`` grid spanning the rectangle (edges included)."""
+def _grid(lo_u, hi_u, lo_v, hi_v, shape: tuple[int, int], dtype, band=None):
+    """Vertices of a ``rows x cols`` grid spanning the rectangle (edges included).
+
+    `band`: ``(start, count)``: only the grid rows ``start .. start + count - 1``
+    (`start` may be traced and the rows may run past the grid: see `band_rows`).
+    """
     rows, cols = shape
     u = lo_u + (hi_u - lo_u) * jnp.arange(cols, dtype=dtype) / (cols - 1)
-    v = lo_v + (hi_v - lo_v) * jnp.arange(rows, dtype=dtype) / (rows - 1)
+    index = jnp.arange(rows) if band is None else band[0] + jnp.arange(band[1])
+    v = lo_v + (hi_v - lo_v) * index.astype(dtype) / (rows - 1)
     uu, vv = jnp.meshgrid(u, v)
     return uu, vv, (hi_u - lo_u) / (cols - 1) * (hi_v - lo_v) / (rows - 1)
+
+
+def band_rows(grid: tuple[int, int], band) -> Bool[Array, " count"]:
+    """Which rows of a band ``(start, count)`` of a ``rows x cols`` grid lie in the grid
+    (rows before the first or past the last are padding: their photons are invalid)."""
+    index = band[0] + jnp.arange(band[1])
+    return (index >= 0) & (index < grid[0])
+
+
+def _clip_band(photons: Photons, grid, band) -> Photons:
+    """Invalidate the photons of a band's rows outside the grid."""
+    if band is None:
+        return photons
+    inside = band_rows(grid, band)[None, :, None]
+    valid = photons.valid & inside
+    return eqx.tree_at(
+        lambda p: (p.valid, p.density),
+        photons,
+        (valid, jnp.where(valid, photons.density, 0.0)),
+    )
 
 
 def _normalise(v):
@@ -97,8 +122,14 @@ def _stack(components):
     return jnp.stack(jnp.broadcast_arrays(*components), axis=-1)
 
 
-def lens_photons(scene: LensScene, grid: tuple[int, int], hit_iterations: int = 3) -> Photons:
+def lens_photons(
+    scene: LensScene, grid: tuple[int, int], hit_iterations: int = 3, band=None
+) -> Photons:
     """Trace a ``rows x cols`` grid of photons through a `LensScene`.
+
+    `band` (optional) ``(start, count)``: trace only the grid rows ``start .. start +
+    count - 1`` (a ``count x cols`` `Photons`, bitwise the same photons as those rows of
+    the whole grid; rows outside the grid are invalid; `start` may be traced).
 
     The grid's vertices span the aperture (``surface.extent``, rotated with the surface)
     on the top surface's rest plane, edges included; each photon's line crosses that
@@ -109,7 +140,7 @@ def lens_photons(scene: LensScene, grid: tuple[int, int], hit_iterations: int = 
     surface = scene.surface
     dtype = surface.heights.dtype
     x0, x1, y0, y1 = surface.extent
-    u, v, cell_area = _grid(x0, x1, y0, y1, grid, dtype)
+    u, v, cell_area = _grid(x0, x1, y0, y1, grid, dtype, band)
     # the grid turns with the surface about the extent's centre
     cx, cy = 0.5 * (x0 + x1), 0.5 * (y0 + y1)
     cos_r, sin_r = jnp.cos(surface.rotation), jnp.sin(surface.rotation)
@@ -152,7 +183,8 @@ def lens_photons(scene: LensScene, grid: tuple[int, int], hit_iterations: int = 
         directions.append(_stack(out))
         densities.append(jnp.where(valid, flux, 0.0))
         valids.append(valid)
-    return _stack_channels(positions, directions, densities, valids, cell_area, dtype)
+    photons = _stack_channels(positions, directions, densities, valids, cell_area, dtype)
+    return _clip_band(photons, grid, band)
 
 
 def _emission_frame(scene: MeshScene, dtype):
@@ -187,7 +219,11 @@ def _shading_normal(scene: MeshScene, face, bary, vnormals, fnormal):
 
 
 def mesh_photons(
-    scene: MeshScene, grid: tuple[int, int], batch_size: int = 4096, terminal=None
+    scene: MeshScene,
+    grid: tuple[int, int],
+    batch_size: int = 4096,
+    terminal=None,
+    band=None,
 ) -> Photons:
     """Trace a ``rows x cols`` grid of photons through a `MeshScene`.
 
@@ -203,10 +239,12 @@ def mesh_photons(
     screen): a function ``(origins (P, 3), directions (P, 3)) -> (points (P, 3), found
     (P,))`` giving where the rays leaving the generator end, for example by tracing them
     in a layered distance map. Terminal points may then lie on occluders.
+
+    `band` (optional) ``(start, count)``: only those grid rows, as in `lens_photons`.
     """
     dtype = scene.generator.vertices.dtype
     centre, radius, axis, e1, e2 = _emission_frame(scene, dtype)
-    u, v, cell_area = _grid(-radius, radius, -radius, radius, grid, dtype)
+    u, v, cell_area = _grid(-radius, radius, -radius, radius, grid, dtype, band)
     plane = centre + u[..., None] * e1 + v[..., None] * e2  # (rows, cols, 3)
     plane = plane.reshape(-1, 3)
     if isinstance(scene.light, DirectionalLight):
@@ -221,14 +259,15 @@ def mesh_photons(
         d0 = offset / jnp.sqrt(r2)[:, None]
         density = scene.light.intensity * jnp.abs(d0 @ axis) / r2
 
-    rows, cols = grid
+    rows, cols = u.shape
     positions, directions, densities, valids = [], [], [], []
     for landed, d, flux, alive in trace_mesh_rays(scene, o0, d0, density, batch_size, terminal):
         positions.append(landed.reshape(rows, cols, 3))
         directions.append(d.reshape(rows, cols, 3))
         densities.append(flux.reshape(rows, cols))
         valids.append(alive.reshape(rows, cols))
-    return _stack_channels(positions, directions, densities, valids, cell_area, dtype)
+    photons = _stack_channels(positions, directions, densities, valids, cell_area, dtype)
+    return _clip_band(photons, grid, band)
 
 
 def trace_mesh_rays(

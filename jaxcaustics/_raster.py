@@ -24,9 +24,11 @@ from __future__ import annotations
 import functools
 import math
 
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
+from jax.sharding import PartitionSpec
 from jaxtyping import Array, Bool, Float
 
 
@@ -478,6 +480,68 @@ def _splat_gaussian(points, flux, valid, shape, sigma, window):
     splat = flux[:, None, None] * w[:, :, None, 1] * w[:, None, :, 0]  # (P, rows, cols)
     rows, cols = jnp.broadcast_arrays(index[:, :, None, 1], index[:, None, :, 0])
     return _scatter(shape, dtype, rows, cols, splat)
+
+
+def _scan_sum(fn, index: Array, axis: str | None = None):
+    """``sum(fn(k) for k in index)`` as a checkpointed scan (one step in memory at a time;
+    each step is recomputed in the reverse pass). `index`: ``(n,)`` int32, ``n >= 1``;
+    `axis`: inside `jax.shard_map`, the mesh axis the index varies along."""
+    if index.shape[0] == 1:
+        return fn(index[0])
+
+    @jax.checkpoint
+    def step(total, k):
+        return jax.tree.map(jnp.add, total, fn(k)), None
+
+    out = jax.eval_shape(fn, index[0])
+    zeros = jax.tree.map(lambda s: jnp.zeros(s.shape, s.dtype), out)
+    if axis is not None:  # the carry varies along the mesh axis, as the index does
+        zeros = jax.tree.map(lambda z: jax.lax.pcast(z, (axis,), to="varying"), zeros)
+    total, _ = jax.lax.scan(step, zeros, index)
+    return total
+
+
+def sum_over_batches(fn, operands, batches: int, *, mesh=None):
+    """``sum(fn(operands, k) for k in range(batches))``, one batch in memory at a time.
+
+    The shared loop of the photon renderers: batch ``k`` builds its primitives itself
+    (from its index), so nothing of size ``batches x batch`` is ever materialised and
+    the compiled graph does not grow with `batches`.
+
+    **Arguments:**
+
+    - `fn`: ``fn(operands, k) -> pytree of arrays``, ``k`` a traced int32 scalar. With a
+      `mesh` it is also called with ``k >= batches`` (padding to whole shares): it must
+      then give zeros (its primitives are all invalid).
+    - `operands`: a pytree (the scene, buffers...) passed to `fn`; with a `mesh` its
+      arrays are replicated on every device. `fn` must not close over traced values.
+    - `batches`: a static int ``>= 1``.
+    - `mesh`: ``None`` (a scan on the default device) or a one-axis
+      `jax.sharding.Mesh` (`jaxcaustics._sharding.device_mesh`): the batch indices are
+      split along its axis with `jax.shard_map`, each device sums its contiguous share
+      with a scan, and the partial sums are added with ``psum``.
+
+    **Returns:** the summed pytree (replicated on the mesh's devices). Differentiable;
+    each step is recomputed in the reverse pass (`jax.checkpoint`).
+    """
+    if mesh is None:
+        return _scan_sum(lambda k: fn(operands, k), jnp.arange(batches, dtype=jnp.int32))
+    (axis,) = mesh.axis_names
+    n = mesh.size
+    index = jnp.arange(-(-batches // n) * n, dtype=jnp.int32)
+    arrays, static = eqx.partition(operands, eqx.is_array)
+
+    def local(arrays, index):
+        total = _scan_sum(lambda k: fn(eqx.combine(arrays, static), k), index, axis)
+        return jax.tree.map(lambda t: jax.lax.psum(t, axis), total)
+
+    sharded = jax.shard_map(
+        local,
+        mesh=mesh,
+        in_specs=(PartitionSpec(), PartitionSpec(axis)),
+        out_specs=PartitionSpec(),
+    )
+    return sharded(arrays, index)
 
 
 def sum_in_batches(raster, batch_size: int, *arrays):

@@ -548,11 +548,6 @@ def test_distance_map_with_occluders_peels_layers_and_tests_shadows(monkeypatch)
     assert seen == {"layers": 2, "shadow_test": True}
 
 
-@pytest.mark.xfail(
-    strict=True,
-    reason="the distance-map pipeline keeps `CubeMapOptions.layers` layers and the "
-    "shadow test without occluders (fix in _methods/triangles.py)",
-)
 def test_distance_map_without_occluders_traces_no_occlusion_work(monkeypatch):
     """Without occluders the layered distance map holds the screen alone (one surface:
     its second layer is empty everywhere) and every caustic lands on the screen (the

@@ -46,7 +46,8 @@ from .._gbuffer import (
 )
 from .._light_view import LightView, light_view
 from .._mesh import MeshScene
-from .._raster import splat_gaussian, sum_in_batches
+from .._raster import splat_gaussian, sum_over_batches
+from .._sharding import device_mesh
 
 METRICS = ("traversal", "error")
 DEFAULT_MEMORY_LIMIT = 1 << 30  # bytes: 1 GiB of photon buffer
@@ -65,7 +66,8 @@ class CausticMapResult(eqx.Module):
     - `stats`: dict of counts (Python ints): ``generated`` (photons shaded, all levels),
       ``splatted`` (photons added to the map: valid ones, a merged cluster counting once),
       ``batches`` (kernel calls), ``peak_buffer_photons`` and ``peak_buffer_bytes`` (the
-      largest photon buffer of one call, see `photon_bytes`); the adaptive renderer adds
+      largest photon buffer of one call, see `photon_bytes`); `caustics_mapping` adds
+      ``devices`` (those the batches were split across); the adaptive renderer adds
       per level lists ``generated_per_level``, ``splatted_per_level``,
       ``refined_per_level``.
     """
@@ -79,11 +81,15 @@ class CausticMapResult(eqx.Module):
 
 
 def photon_bytes(channels: int, window: int, dtype) -> int:
-    """Memory one photon takes in a batch, bytes: its view point (2 floats), per channel
-    its landing point, texel coordinates and flux (6 floats) and validity (1 byte), and
-    its splat's ``window x window`` weights per channel."""
+    """Memory one photon takes in a batch, bytes: a model of XLA's compiled temporaries
+    for shading and splatting it, per channel ``size (2 w^2 + 8) + 8 w^2`` (``size``
+    the dtype's bytes, ``w`` the splat window): per texel of its ``w x w`` splat, its
+    weight, a partial and two int32 scatter indices. On a CPU in float64 the measured
+    cost is 65-85% of it for windows 5 to 13, both intersections, one or three
+    channels (``tests/test_memory.py`` checks the bound)."""
     size = jnp.dtype(dtype).itemsize
-    return size * (2 + channels * (6 + window * window)) + channels
+    w2 = window * window
+    return channels * (size * (2 * w2 + 8) + 8 * w2)
 
 
 def _check_int(value, name: str, low: int) -> int:
@@ -214,29 +220,40 @@ def _channels_last(scene: MeshScene, images: Array) -> Array:
     return jnp.moveaxis(images, 0, -1) if multi else images[0]
 
 
-def _photon_grid(view: LightView, photons: int) -> tuple[Array, Array, Array]:
-    """Cell-centred ``photons x photons`` grid over the view: ``u, v`` flat, cell area."""
-    u, v = view.texel_centres((photons, photons))
-    return u.reshape(-1), v.reshape(-1), view.texel_area((photons, photons))
+def _photon_batch(view: LightView, photons: int, batch: int, k) -> tuple[Array, Array, Array]:
+    """Batch `k` of the cell-centred ``photons x photons`` grid over the view, in
+    row-major order: ``u, v`` ``(batch,)`` and whether each is a photon of the grid
+    (the last batch is padded); the grid itself is never built."""
+    index = k * batch + jnp.arange(batch, dtype=jnp.int32)
+    row, col = index // photons, index % photons
+    u0, u1, v0, v1 = (view.window[i] for i in range(4))
+    dtype = view.window.dtype
+    u = u0 + (col.astype(dtype) + 0.5) * (u1 - u0) / photons
+    v = v0 + (row.astype(dtype) + 0.5) * (v1 - v0) / photons
+    return u, v, index < photons * photons
 
 
 @eqx.filter_jit
-def _dense_map(scene, buffers, photons, map_shape, sigma, window, batch, intersection, iterations):
-    view = buffers.view
-    u, v, cell_area = _photon_grid(view, photons)
+def _dense_map(
+    scene, buffers, photons, map_shape, sigma, window, batch, intersection, iterations, mesh
+):
+    batches = -(-photons * photons // batch)
 
-    def raster(u_, v_, live):
+    def raster(operands, k):
+        scene, buffers = operands
+        view = buffers.view
+        u, v, live = _photon_batch(view, photons, batch, k)
+        cell_area = view.texel_area((photons, photons))
         hits = shade_photons(
-            scene, buffers, u_, v_, cell_area, intersection=intersection, iterations=iterations
+            scene, buffers, u, v, cell_area, intersection=intersection, iterations=iterations
         )
         hits = eqx.tree_at(lambda h: h.valid, hits, hits.valid & live[None])
         flux = jnp.where(hits.valid, hits.flux, 0.0)
         cmap = _splat(view, hits, map_shape, sigma, window)
         return cmap, flux.sum(axis=1), hits.valid.any(axis=0).sum()
 
-    live = jnp.ones(u.shape, bool)
-    cmap, total, splatted = sum_in_batches(raster, batch, u, v, live)
-    images, missed = _receiver_image(scene, view, cmap, total)
+    cmap, total, splatted = sum_over_batches(raster, (scene, buffers), batches, mesh=mesh)
+    images, missed = _receiver_image(scene, buffers.view, cmap, total)
     return cmap, images, missed, splatted
 
 
@@ -250,6 +267,7 @@ def caustics_mapping(
     intersection: Literal["image_space", "exact"] = "image_space",
     iterations: int = 4,
     memory_limit: int | None = None,
+    devices=None,
 ) -> CausticMapResult:
     """Caustics of a mesh scene by Shah et al.'s caustics mapping (dense photon splats).
 
@@ -273,7 +291,13 @@ def caustics_mapping(
       of its radius (`jaxcaustics._gbuffer.intersection_errors`; near the rim the
       update converges slowly whatever the count), for one texture lookup per step.
     - `memory_limit`: bytes of photon buffer per batch (`photon_bytes` per photon);
-      photons beyond it are shaded and splatted in further batches. Default 1 GiB.
+      photons beyond it are shaded and splatted in further batches (a loop: each batch
+      makes its own photons from its index, so the ``N x N`` grid never exists and the
+      compiled graph does not grow with ``N``). Default 1 GiB.
+    - `devices`: ``None``: the default device only. An int ``n`` (the first ``n`` of
+      `jax.devices()`) or a list of devices: the batches are split across them
+      (`jax.shard_map` over `jaxcaustics._sharding.device_mesh(devices)`, at least one
+      batch per device) and the partial maps summed (``psum``); same map to rounding.
 
     **Returns:** a `CausticMapResult`. Jit-compiled; differentiable with respect to the
     generator's vertices (and the light), through the geometry buffers and the photons.
@@ -289,16 +313,21 @@ def caustics_mapping(
     window = 2 * math.ceil(3.0 * sigma) + 1
     dtype = scene.generator.vertices.dtype
     per_photon = photon_bytes(len(scene.iors), window, dtype)
-    batch = max(1, min(photons * photons, memory_limit // per_photon))
+    if photons > 46340:  # photon indices are int32
+        raise ValueError(f"`photons` must be at most 46340 (int32 indices), got {photons}")
+    mesh = None if devices is None else device_mesh(devices)
+    n_devices = 1 if mesh is None else mesh.size
+    batch = max(1, min(-(-photons * photons // n_devices), memory_limit // per_photon))
     buffers = _view_and_buffers(scene, gbuffer_resolution)
     map_shape = (map_resolution, map_resolution)
     cmap, images, missed, splatted = _dense_map(
-        scene, buffers, photons, map_shape, sigma, window, batch, intersection, iterations
+        scene, buffers, photons, map_shape, sigma, window, batch, intersection, iterations, mesh
     )
     stats = {
         "generated": photons * photons,
         "splatted": splatted,
         "batches": -(-photons * photons // batch),
+        "devices": n_devices,
         "peak_buffer_photons": batch,
         "peak_buffer_bytes": batch * per_photon,
     }

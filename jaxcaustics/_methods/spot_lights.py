@@ -10,6 +10,8 @@ fitting.
 
 from __future__ import annotations
 
+import math
+import numbers
 from typing import Any
 
 import equinox as eqx
@@ -21,6 +23,22 @@ from .._mesh import MeshScene
 from .._scene import DirectionalLight
 from .._spot_light_fit import FitInfo, fit_spot_lights
 from .._spot_lights import Glossy, Lambertian, SpotLights, render_spot_lights
+
+DEFAULT_MEMORY_LIMIT = 1 << 30  # bytes: 1 GiB of traced rays
+_RAY_FLOATS = 64  # per traced ray: the exit ray, tracing and fit temporaries (estimate)
+
+
+def ray_bytes(dtype=jnp.float64) -> int:
+    """Memory one traced ray takes (its exit ray, the tracing temporaries and the fit's
+    per-ray arrays; an estimate: XLA's temporaries of `trace_exit_rays` on an ellipsoid
+    are about 20 numbers per ray), bytes."""
+    return jnp.dtype(dtype).itemsize * _RAY_FLOATS
+
+
+def max_rays_per_axis(memory_limit: int, dtype=jnp.float64) -> int:
+    """The largest `rays_per_axis` whose rays fit in `memory_limit` bytes (`ray_bytes`
+    each)."""
+    return math.isqrt(int(memory_limit) // ray_bytes(dtype))
 
 
 class SpotLightResult(eqx.Module):
@@ -34,7 +52,10 @@ class SpotLightResult(eqx.Module):
       given).
     - `missed_flux_fraction`: ``(C,)`` share of the light leaving the object that the
       fitted lights do not carry (``1 - FitInfo.fraction``; 0 for given lights).
-    - `stats`: ``lights`` (active lights per channel) and ``traced_rays``.
+    - `stats`: ``lights`` (active lights per channel), ``traced_rays``, and, as the
+      other photon renderers, ``batches`` (traced grids: one per channel fitted),
+      ``peak_buffer_photons`` (rays of one grid) and ``peak_buffer_bytes`` (by
+      `ray_bytes`).
     """
 
     image: Float[Array, "..."]
@@ -73,6 +94,7 @@ def spot_lights(
     shading: Lambertian | Glossy | None = None,
     max_gain: float = 1e4,
     intensity_correction: bool = True,
+    memory_limit: int | None = None,
     **fit_knobs: Any,
 ) -> SpotLightResult:
     """Caustics of a glass object by caustic spot lights (Liu et al. 2008).
@@ -89,6 +111,10 @@ def spot_lights(
     - `samples`: points per pixel side averaged (see `render_spot_lights`).
     - `shading`, `max_gain`, `intensity_correction`: see `shade_points` and
       `evaluate_spot_lights`.
+    - `memory_limit`: bytes for the traced rays of one channel (default 1 GiB,
+      `ray_bytes` per ray). The fit needs all of a grid's rays at once, so they are not
+      batched: a grid over the limit raises a `ValueError` before anything is compiled,
+      naming the largest `rays_per_axis` that fits (`max_rays_per_axis`).
     - `**fit_knobs`: passed to `fit_spot_lights` (`max_lights`, `energy_fraction`,
       `resolution`, `cells`, thresholds...).
 
@@ -97,6 +123,20 @@ def spot_lights(
     _check_scene(scene)
     if lights is not None and fit_knobs:
         raise ValueError(f"`lights` were given: nothing to fit with {sorted(fit_knobs)}")
+    if memory_limit is None:
+        memory_limit = DEFAULT_MEMORY_LIMIT
+    if isinstance(memory_limit, bool) or not isinstance(memory_limit, int) or memory_limit < 1:
+        raise ValueError(f"`memory_limit` must be an int >= 1, got {memory_limit!r}")
+    dtype = jnp.result_type(scene.light.direction)
+    per_ray = ray_bytes(dtype)
+    if lights is None and isinstance(rays_per_axis, numbers.Integral):
+        if int(rays_per_axis) ** 2 * per_ray > memory_limit:
+            raise ValueError(
+                f"`rays_per_axis` {rays_per_axis} needs {rays_per_axis**2 * per_ray} bytes of "
+                f"traced rays ({per_ray} per ray), over `memory_limit` {memory_limit}: the fit "
+                "needs all rays at once; the largest `rays_per_axis` that fits is "
+                f"{max_rays_per_axis(memory_limit, dtype)} (or raise `memory_limit`)"
+            )
     occluders = tuple(getattr(scene, "occluders", ())) if isinstance(scene, EllipsoidScene) else ()
     # the fit's units: power for unit irradiance across the light; the library's images
     # are relative to the irradiance on a horizontal plane
@@ -126,5 +166,8 @@ def spot_lights(
     stats = {
         "lights": tuple(jnp.sum(s.active) for s in sets),
         "traced_rays": 0 if lights is not None else rays_per_axis**2 * len(sets),
+        "batches": 0 if lights is not None else len(sets),
+        "peak_buffer_photons": 0 if lights is not None else rays_per_axis**2,
+        "peak_buffer_bytes": 0 if lights is not None else rays_per_axis**2 * per_ray,
     }
     return SpotLightResult(image, tuple(sets), tuple(infos), jnp.stack(missed), stats)

@@ -25,6 +25,7 @@ that use them (masks, never Python-side filtering).
 
 from __future__ import annotations
 
+import dataclasses
 from typing import Literal
 
 import equinox as eqx
@@ -42,11 +43,14 @@ from .._raster import (
     signed_area,
     splat_gaussian,
     sum_in_batches,
+    sum_over_batches,
 )
 from .._scene import LensScene, PlaneReceiver
+from .._sharding import device_mesh
 
 RECONSTRUCTIONS = ("exact", "gouraud")
 MAX_AUTO_WINDOW = 32
+DEFAULT_MEMORY_LIMIT = 1 << 30  # bytes: 1 GiB of photon and triangle buffers
 
 
 class TrianglesResult(eqx.Module):
@@ -56,12 +60,20 @@ class TrianglesResult(eqx.Module):
     - `missed_flux_fraction`: per channel ``(channels,)``: the fraction of the flux of
       the valid triangles that is not in the image (it lands off the screen, or beyond a
       triangle's `window`).
-    - `photons`: the photon hit location image used.
+    - `photons`: the photon hit location image used; ``None`` when the grid was traced
+      in bands (it never existed whole: see `caustic_triangles`' `memory_limit`).
+    - `stats`: dict of Python ints: ``bands`` (row bands of the photon grid, traced one
+      after the other), ``batches`` (rasteriser calls, all bands), ``triangle_batch``
+      (triangles per call), ``ray_batch`` (mesh scenes: rays per triangle search),
+      ``devices``, ``peak_buffer_photons`` (photons of one band) and
+      ``peak_buffer_bytes`` (one band's photon and triangle buffers plus one
+      rasteriser batch, by `band_bytes` and `triangle_bytes`).
     """
 
     image: Array
     missed_flux_fraction: Array
-    photons: Photons
+    photons: Photons | None
+    stats: dict = eqx.field(default_factory=dict)
 
 
 def grid_triangles(values: Array) -> Array:
@@ -105,29 +117,49 @@ def _screen_triangles(photons: Photons, extent, shape) -> _Triangles:
     return _Triangles(pixels, flux, valid)
 
 
-def _vertex_irradiance(flux: Array, area: Array, valid: Array, grid) -> Array:
+def _vertex_irradiance(flux: Array, area: Array, valid: Array, grid, mean_area=None) -> Array:
     """The paper's vertex irradiance ``dPhi / dA``: a third of each adjacent triangle's
     flux over a third of its area (on the surface it landed on), per triangle corner
-    ``(C, T, 3)``; `flux`, `area` and `valid` are per triangle ``(C, T)``."""
+    ``(C, T, 3)``; `flux`, `area` and `valid` are per triangle ``(C, T)``; `mean_area`
+    ``(C,)``: the valid area over the number of triangles of the whole grid (default:
+    of these triangles)."""
     area = jnp.where(valid, area, 0.0)
     flux = jnp.where(valid, flux, 0.0)
     power = _scatter_to_vertices(jnp.broadcast_to(flux[..., None] / 3, area.shape + (3,)), grid)
     spread = _scatter_to_vertices(jnp.broadcast_to(area[..., None] / 3, area.shape + (3,)), grid)
     # a vertex whose triangles all collapsed (a perfect focus) is given a thousandth of
     # its mean share of area: finite, and far brighter than anything resolvable
-    floor = 1e-3 * jnp.sum(area, axis=-1, keepdims=True) / jnp.maximum(1, area.shape[-1])
+    if mean_area is None:
+        mean_area = jnp.sum(area, axis=-1) / max(1, area.shape[-1])
+    floor = 1e-3 * mean_area[:, None]
     irradiance = power / jnp.maximum(spread, floor[..., None])
     rows, cols = grid
     index = grid_triangles(jnp.arange(rows * cols).reshape(1, rows, cols))[0]
     return irradiance.reshape(irradiance.shape[0], -1)[:, index]
 
 
-@eqx.filter_jit
-def _triangles_image(
-    photons, extent, shape, reconstruction: str, window: int, supersample: int, batch_size: int
+def _pixel_area(extent, shape):
+    return (extent[1] - extent[0]) / shape[1] * (extent[3] - extent[2]) / shape[0]
+
+
+def _band_image(
+    photons,
+    extent,
+    shape,
+    reconstruction: str,
+    window: int,
+    supersample: int,
+    batch_size: int,
+    draw=None,
+    mean_area=None,
 ):
+    """Rasterise the caustic triangles of `photons` (a whole grid or a band of its rows),
+    `batch_size` at a time. `draw` ``(T,)``: which of them to draw (a band's own rows:
+    its halo rows only complete the vertex irradiance); `mean_area`: see
+    `_vertex_irradiance`. **Returns:** the summed rasteriser output ``(C, rows, cols)``
+    (flux per pixel, or the Gouraud image) and the drawn valid flux ``(C,)``."""
     tri = _screen_triangles(photons, extent, shape)
-    pixel_area = (extent[1] - extent[0]) / shape[1] * (extent[3] - extent[2]) / shape[0]
+    drawn = tri.valid if draw is None else tri.valid & draw[None]
     if reconstruction == "exact":
 
         def raster(v, f, m):
@@ -139,21 +171,63 @@ def _triangles_image(
         def raster(v, e, m):
             return rasterize_gouraud(v, e, m, shape, window, supersample)
 
-        area = jnp.abs(signed_area(tri.pixels)) * pixel_area
-        values = _vertex_irradiance(tri.flux, area, tri.valid, photons.grid_shape)
+        area = jnp.abs(signed_area(tri.pixels)) * _pixel_area(extent, shape)
+        values = _vertex_irradiance(tri.flux, area, tri.valid, photons.grid_shape, mean_area)
     images = jnp.stack(
         [
-            sum_in_batches(raster, batch_size, tri.pixels[c], values[c], tri.valid[c])
+            sum_in_batches(raster, batch_size, tri.pixels[c], values[c], drawn[c])
             for c in range(tri.valid.shape[0])
         ]
     )
+    return images, jnp.where(drawn, tri.flux, 0.0).sum(axis=-1)
+
+
+def _finish(images, total, extent, shape, reconstruction):
+    """Irradiance images and the missed-flux fraction from `_band_image`'s sums."""
+    pixel_area = _pixel_area(extent, shape)
     if reconstruction == "exact":
         # overlap areas are sums of signed edge terms: clear their rounding below zero
         images = jnp.maximum(images / pixel_area, 0.0)
-    total = tri.flux.sum(axis=-1)
     landed = images.sum(axis=(1, 2)) * pixel_area
     missed = jnp.where(total > 0, 1.0 - landed / jnp.where(total > 0, total, 1.0), 0.0)
     return images, jnp.clip(missed, 0.0, 1.0)
+
+
+@eqx.filter_jit
+def _triangles_image(
+    photons, extent, shape, reconstruction: str, window: int, supersample: int, batch_size: int
+):
+    images, total = _band_image(
+        photons, extent, shape, reconstruction, window, supersample, batch_size
+    )
+    return _finish(images, total, extent, shape, reconstruction)
+
+
+def _extent_histogram(photons: Photons, extent, shape) -> Array:
+    """Valid flux of the caustic triangles of `photons` by the side of the pixel block
+    that holds each whole (``0 .. MAX_AUTO_WINDOW``; larger ones in one more bin),
+    channels pooled: ``(MAX_AUTO_WINDOW + 2,)``."""
+    tri = _screen_triangles(photons, extent, shape)
+    keep = tri.valid & (tri.flux > 0)
+    pix = jnp.where(keep[..., None, None], tri.pixels, 0.0)
+    span = jnp.max(jnp.ceil(pix.max(axis=-2)) - jnp.floor(pix.min(axis=-2)), axis=-1)
+    bins = jnp.clip(span, 0, MAX_AUTO_WINDOW + 1).astype(jnp.int32)
+    flux = jnp.where(keep, tri.flux, 0.0)
+    return jnp.zeros(MAX_AUTO_WINDOW + 2, flux.dtype).at[bins.reshape(-1)].add(flux.reshape(-1))
+
+
+_extent_histogram_jit = eqx.filter_jit(_extent_histogram)
+
+
+def _window_from_histogram(histogram, flux_fraction: float) -> int:
+    """`triangle_window` from `_extent_histogram` (summed over bands)."""
+    histogram = np.asarray(histogram, np.float64)
+    total = histogram.sum()
+    if not total > 0:
+        return 1
+    cumulative = np.cumsum(histogram) / total
+    needed = min(int(np.searchsorted(cumulative, flux_fraction)), len(histogram) - 1)
+    return int(min(MAX_AUTO_WINDOW, max(1, needed)))
 
 
 def triangle_window(photons: Photons, receiver: PlaneReceiver, flux_fraction: float = 0.999) -> int:
@@ -165,19 +239,8 @@ def triangle_window(photons: Photons, receiver: PlaneReceiver, flux_fraction: fl
     triangle for all triangles. Their flux beyond the window is reported as missed.
     Needs concrete values (call it outside `jit`).
     """
-    tri = _screen_triangles(photons, receiver.extent, receiver.shape)
-    pix = np.asarray(tri.pixels).reshape(-1, 3, 2)
-    flux = np.asarray(tri.flux).reshape(-1)
-    valid = np.asarray(tri.valid).reshape(-1) & (flux > 0)
-    if not valid.any():
-        return 1
-    pix, flux = pix[valid], flux[valid]
-    low = np.floor(pix.min(axis=1))
-    extent = np.max(np.ceil(pix.max(axis=1)) - low, axis=1)
-    order = np.argsort(extent)
-    cumulative = np.cumsum(flux[order]) / flux.sum()
-    needed = extent[order][min(np.searchsorted(cumulative, flux_fraction), len(order) - 1)]
-    return int(min(MAX_AUTO_WINDOW, max(1, needed)))
+    histogram = _extent_histogram_jit(photons, receiver.extent, receiver.shape)
+    return _window_from_histogram(histogram, flux_fraction)
 
 
 def triangles_image(
@@ -345,6 +408,10 @@ def _cube_map_image(photons: Photons, centre, receiver: PlaneReceiver, options: 
 def _distance_map_caustics(scene: MeshScene, grid, batch_size, options: CubeMapOptions):
     from .._distance_map import build_distance_map
 
+    if not scene.occluders:
+        # the screen alone: one layer holds it, and every caustic lands on it (no
+        # occlusion work is traced)
+        options = dataclasses.replace(options, layers=1, shadow_test=False)
     centre = _cube_centre(scene)
     dmap = build_distance_map(centre, scene.occluders, options.resolution, options.layers)
     ph = _distance_map_photons(scene, dmap, grid, batch_size, options)
@@ -352,6 +419,113 @@ def _distance_map_caustics(scene: MeshScene, grid, batch_size, options: CubeMapO
     # flux bookkeeping on the screen is not defined here (caustics may land on occluders)
     missed = jnp.full(images.shape[:1], jnp.nan, images.dtype)
     return ph, images, missed
+
+
+# memory model of one band and one rasteriser batch, in numbers of the scene's dtype
+# (about 1.2 to 1.5 times XLA's compiled temporaries on CPU; tests/test_memory.py checks
+# the bound)
+_BAND_FLOATS = 64  # per photon and channel: photon, its two triangles, tracing temporaries
+_RAY_SEARCH_FLOATS = 16  # per ray and generator face in the mesh triangle search
+
+
+def triangle_bytes(
+    window: int, reconstruction: str = "exact", supersample: int = 2, dtype=jnp.float64
+) -> int:
+    """Memory one triangle takes in a rasteriser batch, bytes: for `rasterize_exact`
+    three numbers per edge term ``3 x window x (window + 1)`` (its overlap areas and the
+    scattered block), for `rasterize_gouraud` two per sample ``(window S)^2``, plus 64
+    numbers (vertices, values, indices)."""
+    size = jnp.dtype(dtype).itemsize
+    w = int(window)
+    if reconstruction == "exact":
+        return size * (9 * w * (w + 1) + 64)
+    side = w * int(supersample)
+    return size * (2 * side * side + 64)
+
+
+def band_bytes(photons: int, channels: int, dtype=jnp.float64, faces: int = 0, ray_batch: int = 0):
+    """Memory of a band of `photons` photons (per channel: the photon, its two caustic
+    triangles and the tracing temporaries, `_BAND_FLOATS` numbers) and, for a mesh scene
+    of `faces` generator faces, of one batch of `ray_batch` rays in the triangle search,
+    bytes."""
+    size = jnp.dtype(dtype).itemsize
+    return size * (photons * channels * _BAND_FLOATS + ray_batch * faces * _RAY_SEARCH_FLOATS)
+
+
+class _BandConfig(eqx.Module):
+    """Static layout of a banded render: `rows` photon rows per band (`rows - 1`
+    triangle rows drawn), `halo` extra photon rows on each side (Gouraud: the vertex
+    irradiance of the band's edge rows needs their other triangles), `bands` bands."""
+
+    grid: tuple[int, int] = eqx.field(static=True)
+    rows: int = eqx.field(static=True)
+    halo: int = eqx.field(static=True)
+    bands: int = eqx.field(static=True)
+    hit_iterations: int = eqx.field(static=True)
+    ray_batch: int = eqx.field(static=True)
+
+    def photons(self, scene, k, halo: int):
+        """The photons of band `k` (photon rows ``k (rows - 1) - halo`` on, ``rows + 2
+        halo`` of them)."""
+        band = (k * (self.rows - 1) - halo, self.rows + 2 * halo)
+        if isinstance(scene, LensScene):
+            return lens_photons(scene, self.grid, self.hit_iterations, band)
+        return mesh_photons(scene, self.grid, self.ray_batch, band=band)
+
+    def drawn(self, halo: int):
+        """Which of a band's triangles are its own (not the halo's): ``(T,)``."""
+        per_row = 2 * (self.grid[1] - 1)
+        row = jnp.arange((self.rows + 2 * halo - 1) * per_row) // per_row
+        return (row >= halo) & (row < halo + self.rows - 1)
+
+
+@eqx.filter_jit
+def _band_census(scene, cfg: _BandConfig, mesh):
+    """Over all bands: the extent histogram (`_extent_histogram`) and the valid screen
+    area of the triangles per channel ``(C,)``."""
+
+    def census(scene, k):
+        ph = cfg.photons(scene, k, 0)
+        extent, shape = scene.receiver.extent, scene.receiver.shape
+        tri = _screen_triangles(ph, extent, shape)
+        area = jnp.abs(signed_area(tri.pixels)) * _pixel_area(extent, shape)
+        area = jnp.where(tri.valid, area, 0.0).sum(axis=-1)
+        return _extent_histogram(ph, extent, shape), area
+
+    return sum_over_batches(census, scene, cfg.bands, mesh=mesh)
+
+
+@eqx.filter_jit
+def _banded_image(
+    scene, cfg: _BandConfig, mean_area, reconstruction, window, supersample, batch_size, mesh
+):
+    """The images and missed-flux fractions of a grid traced and drawn band by band
+    (`sum_over_batches`: a scan, or split across the `mesh`'s devices)."""
+    extent, shape = scene.receiver.extent, scene.receiver.shape
+
+    def band(operands, k):
+        scene, mean_area = operands
+        ph = cfg.photons(scene, k, cfg.halo)
+        return _band_image(
+            ph,
+            scene.receiver.extent,
+            shape,
+            reconstruction,
+            window,
+            supersample,
+            batch_size,
+            draw=cfg.drawn(cfg.halo),
+            mean_area=mean_area,
+        )
+
+    images, total = sum_over_batches(band, (scene, mean_area), cfg.bands, mesh=mesh)
+    return _finish(images, total, extent, shape, reconstruction)
+
+
+def _check_int(value, name: str, low: int) -> int:
+    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < low:
+        raise ValueError(f"`{name}` must be an int >= {low}, got {value!r}")
+    return int(value)
 
 
 def caustic_triangles(
@@ -362,8 +536,10 @@ def caustic_triangles(
     window: int | Literal["auto"] = "auto",
     supersample: int = 2,
     hit_iterations: int = 3,
-    batch_size: int = 4096,
-    triangle_batch: int = 16384,
+    memory_limit: int | None = None,
+    batch_size: int | None = None,
+    triangle_batch: int | None = None,
+    devices=None,
     visibility: Literal["exact", "distance_map"] = "exact",
     cube_map: CubeMapOptions | None = None,
 ) -> TrianglesResult:
@@ -382,10 +558,25 @@ def caustic_triangles(
       Flux beyond it is reported as missed.
     - `supersample`: ``"gouraud"`` only: ``S x S`` point samples per pixel.
     - `hit_iterations`: lens scenes: Newton steps for the top-surface hit.
+    - `memory_limit`: bytes for the photon and triangle buffers (default 1 GiB). Half
+      goes to photons: when the grid's photons (`band_bytes`) exceed it, the grid is
+      traced and drawn in *bands* of photon rows, one after the other (a loop: the
+      compiled graph does not grow with the grid), consecutive bands sharing one row
+      so that every triangle is drawn exactly once (Gouraud bands also trace one halo
+      row on each side for the vertex irradiance); the whole grid then never exists,
+      `TrianglesResult.photons` is ``None``, and ``window="auto"`` or Gouraud costs a
+      first pass over the bands (the window's histogram, the mean triangle area). A
+      quarter goes to each rasteriser batch (`triangle_bytes` per triangle) and, for
+      mesh scenes, a quarter to the rays of one triangle-search batch. Same image
+      (to rounding) whatever the limit.
     - `batch_size`: mesh scenes: rays per batch in the triangle search (memory
-      ``batch_size x faces``).
-    - `triangle_batch`: triangles rasterised at a time (memory ``triangle_batch x
-      window^2``).
+      ``batch_size x faces``); default from `memory_limit`, at most 4096.
+    - `triangle_batch`: triangles rasterised at a time; default from `memory_limit`.
+    - `devices`: ``None``: the default device only. An int ``n`` (the first ``n`` of
+      `jax.devices()`) or a list of devices: the bands are split across them
+      (`jax.shard_map` over `jaxcaustics._sharding.device_mesh(devices)`, at least one
+      band per device) and the partial images summed (``psum``); same image to
+      rounding.
     - `visibility`: mesh scenes: ``"exact"`` (rays leaving the generator are intersected
       exactly with the occluders and the screen; triangles are drawn on the screen) or
       ``"distance_map"`` (the paper's pipeline: rays are traced in a layered distance map
@@ -394,40 +585,120 @@ def caustic_triangles(
       onto the screen with a shadow-map distance test, so caustics landing on an
       occluder do not leak onto the screen behind it). Its knobs: `cube_map`
       (`CubeMapOptions`); `reconstruction`, `window` and `supersample` do not apply, and
-      the missed-flux fraction is NaN (light may land on occluders).
+      the missed-flux fraction is NaN (light may land on occluders). It traces the
+      whole grid at once: a grid over half the `memory_limit` raises a `ValueError`,
+      and `devices` must be ``None``.
 
-    **Returns:** a `TrianglesResult` (image, missed-flux fraction, photons).
+    **Returns:** a `TrianglesResult` (image, missed-flux fraction, photons, stats).
     Differentiable with respect to the scene's arrays (the lens heights, the mesh
-    vertices, the light).
+    vertices, the light), banded and sharded too.
     """
     if not isinstance(scene, (LensScene, MeshScene)):
         raise ValueError(f"`scene` must be a LensScene or a MeshScene, got {type(scene).__name__}")
     grid = _check_grid(photons)
-    for name, value, low in (
-        ("hit_iterations", hit_iterations, 0),
-        ("batch_size", batch_size, 1),
-    ):
-        if isinstance(value, bool) or not isinstance(value, int) or value < low:
-            raise ValueError(f"`{name}` must be an int >= {low}, got {value!r}")
+    _check_int(hit_iterations, "hit_iterations", 0)
+    if reconstruction not in RECONSTRUCTIONS:
+        raise ValueError(
+            f"`reconstruction` must be one of {RECONSTRUCTIONS}, got {reconstruction!r}"
+        )
+    supersample = _check_int(supersample, "supersample", 1)
+    memory_limit = _check_int(
+        DEFAULT_MEMORY_LIMIT if memory_limit is None else memory_limit, "memory_limit", 1
+    )
     if visibility not in ("exact", "distance_map"):
         raise ValueError(f"`visibility` must be 'exact' or 'distance_map', got {visibility!r}")
+    if window != "auto":
+        window = _check_int(window, "window", 1)
+    channels = len(scene.iors)
+    dtype = (
+        scene.surface.heights if isinstance(scene, LensScene) else scene.generator.vertices
+    ).dtype
+    faces = int(scene.generator.faces.shape[0]) if isinstance(scene, MeshScene) else 0
+    if batch_size is None:
+        per_ray = band_bytes(0, 0, dtype, faces, 1) if faces else 1
+        batch_size = max(1, min(4096, memory_limit // 4 // per_ray))
+    batch_size = _check_int(batch_size, "batch_size", 1)
+    ray_batch = batch_size if faces else 0
+    mesh = None if devices is None else device_mesh(devices)
+    n_devices = 1 if mesh is None else mesh.size
+
+    # photon rows per band: half the limit, less one ray-search batch
+    row_bytes = band_bytes(grid[1], channels, dtype)
+    budget = memory_limit // 2 - band_bytes(0, 0, dtype, faces, ray_batch)
+    halo = 1 if reconstruction == "gouraud" else 0
+    rows = max(2, budget // row_bytes - 2 * halo)
+    if mesh is not None:  # at least one band per device
+        rows = min(rows, -(-(grid[0] - 1) // n_devices) + 1)
+    banded = rows < grid[0] or mesh is not None
+    if not banded:
+        rows, halo = grid[0], 0
+    bands = -(-(grid[0] - 1) // (rows - 1))
+    band_photons = (rows + 2 * halo) * grid[1]
+
     if visibility == "distance_map":
         if not isinstance(scene, MeshScene):
             raise ValueError("`visibility='distance_map'` needs a MeshScene")
+        if banded:
+            raise ValueError(
+                f"`visibility='distance_map'` traces the whole grid at once: {grid} photons "
+                f"need {band_bytes(grid[0] * grid[1], channels, dtype)} bytes, over half the "
+                f"`memory_limit` {memory_limit}, or `devices` was given (pass fewer "
+                "`photons`, a larger `memory_limit`, devices=None)"
+            )
         ph, images, missed = _distance_map_caustics(
             scene, grid, batch_size, cube_map or CubeMapOptions()
         )
-        return TrianglesResult(_channels_last(scene, images), missed, ph)
-    ph = trace_photons(scene, grid, hit_iterations, batch_size)
-    images, missed = triangles_image(
-        ph,
-        scene.receiver,
-        reconstruction=reconstruction,
-        window=window,
-        supersample=supersample,
-        batch_size=triangle_batch,
-    )
-    return TrianglesResult(_channels_last(scene, images), missed, ph)
+        stats = {
+            "bands": 1,
+            "batches": 1,
+            "triangle_batch": 2 * (grid[0] - 1) * (grid[1] - 1),
+            "ray_batch": batch_size,
+            "devices": 1,
+            "peak_buffer_photons": grid[0] * grid[1],
+            "peak_buffer_bytes": band_bytes(grid[0] * grid[1], channels, dtype, faces, batch_size),
+        }
+        return TrianglesResult(_channels_last(scene, images), missed, ph, stats)
+
+    receiver = scene.receiver
+    cfg = _BandConfig(grid, rows, halo, bands, hit_iterations, ray_batch)
+    traced = any(isinstance(x, jax.core.Tracer) for x in jax.tree.leaves(scene))
+    if window == "auto" and traced:
+        raise ValueError("window='auto' needs concrete scene values; under jit/vmap pass an int")
+    ph, mean_area = None, None
+    if not banded:
+        ph = trace_photons(scene, grid, hit_iterations, batch_size)
+        if window == "auto":
+            window = triangle_window(ph, receiver)
+    elif window == "auto" or reconstruction == "gouraud":
+        histogram, area = _band_census(scene, cfg, mesh)
+        if window == "auto":
+            window = _window_from_histogram(histogram, 0.999)
+        mean_area = area / (2 * (grid[0] - 1) * (grid[1] - 1))
+    if triangle_batch is None:
+        per_triangle = triangle_bytes(window, reconstruction, supersample, dtype)
+        triangle_batch = max(1, memory_limit // 4 // per_triangle)
+    triangle_batch = _check_int(triangle_batch, "triangle_batch", 1)
+    band_triangles = 2 * (rows + 2 * halo - 1) * (grid[1] - 1)
+    triangle_batch = min(triangle_batch, band_triangles)
+    if not banded:
+        images, missed = _triangles_image(
+            ph, receiver.extent, receiver.shape, reconstruction, window, supersample, triangle_batch
+        )
+    else:
+        images, missed = _banded_image(
+            scene, cfg, mean_area, reconstruction, window, supersample, triangle_batch, mesh
+        )
+    stats = {
+        "bands": bands,
+        "batches": bands * -(-band_triangles // triangle_batch),
+        "triangle_batch": triangle_batch,
+        "ray_batch": ray_batch,
+        "devices": n_devices,
+        "peak_buffer_photons": band_photons,
+        "peak_buffer_bytes": band_bytes(band_photons, channels, dtype, faces, ray_batch)
+        + triangle_batch * triangle_bytes(window, reconstruction, supersample, dtype),
+    }
+    return TrianglesResult(_channels_last(scene, images), missed, ph, stats)
 
 
 def _channels_last(scene, images: Array) -> Array:

@@ -21,6 +21,8 @@ Public functions
   or mirroring triangle mesh, occluders): image (and photon counts), photon by photon,
   emission grid.
 - `intersect_mesh`: nearest ray/triangle hits (exact Möller–Trumbore, float64).
+- `chunk_photons`, `PHOTON_BYTES`: photons traced at a time under a `memory_limit`
+  (bytes; the tracers' `memory_limit` argument).
 - `trace_ellipsoid`, `trace_ellipsoid_rays`: the ellipsoid scene (an analytic glass
   ellipsoid or sphere, ellipsoid occluders, directional light): image (and photon
   counts), and given rays traced to where they leave the ellipsoid.
@@ -151,11 +153,14 @@ orthonormal ``rotation`` whose columns are its axes) of index ``n`` (each of
 from ._ellipsoid import trace_ellipsoid, trace_ellipsoid_rays
 from ._lens import emit_lens_photons, trace_lens, trace_lens_photons
 from ._mesh import emit_mesh_photons, intersect_mesh, trace_mesh, trace_mesh_photons
+from ._optics import PHOTON_BYTES, chunk_photons
 from ._surface import surface_height
 from ._water import area_ratio_water, trace_photons, trace_water
 
 __all__ = [
+    "PHOTON_BYTES",
     "area_ratio_water",
+    "chunk_photons",
     "emit_lens_photons",
     "emit_mesh_photons",
     "intersect_mesh",

@@ -55,3 +55,21 @@ def refract(
         transmittance = np.ones_like(cos_i)
     transmittance = np.where(ok, transmittance, 0.0)
     return tx, ty, tz, transmittance, ok
+
+
+# memory of one photon in a chunk of the reference tracers: its arrays and the tracers'
+# NumPy temporaries, bytes (an estimate: about 128 float64 numbers)
+PHOTON_BYTES = 1024
+
+
+def chunk_photons(memory_limit, default: int) -> int:
+    """Photons traced at a time under `memory_limit` bytes (`PHOTON_BYTES` each);
+    ``None``: the tracer's `default`. Raises a `ValueError` naming `memory_limit` unless
+    it is ``None`` or an int ``>= 1``."""
+    if memory_limit is None:
+        return default
+    if isinstance(memory_limit, bool) or not isinstance(memory_limit, (int, np.integer)):
+        raise ValueError(f"`memory_limit` must be None or an int >= 1, got {memory_limit!r}")
+    if memory_limit < 1:
+        raise ValueError(f"`memory_limit` must be None or an int >= 1, got {memory_limit!r}")
+    return max(1, int(memory_limit) // PHOTON_BYTES)

@@ -10,7 +10,7 @@ from collections.abc import Callable, Sequence
 
 import numpy as np
 
-from ._optics import refract
+from ._optics import chunk_photons, refract
 from ._surface import _Surface, intersect_surface
 
 # Photons (or triangles' samples) handled per vectorised batch: bounds the memory in use.
@@ -339,7 +339,13 @@ def _render(w: _Water, per_axis: int, margin: float | None, estimate: _Estimator
 
 
 def trace_water(
-    scene, *, photons_per_axis: int = 4, jitter: bool = False, seed=0, margin: float | None = None
+    scene,
+    *,
+    photons_per_axis: int = 4,
+    jitter: bool = False,
+    seed=0,
+    margin: float | None = None,
+    memory_limit: int | None = None,
 ) -> np.ndarray:
     """Irradiance on the ground by forward photon tracing (the reference ground truth).
 
@@ -371,6 +377,10 @@ def trace_water(
         surface's slopes and doubles it while photons from its outermost pixel ring still
         reach the receiver, up to twice the receiver's larger side (then warns).
 
+    memory_limit : int or None, default None
+        Bytes of photons traced at a time (``PHOTON_BYTES`` = 1024 per photon, an
+        estimate of its arrays and temporaries); ``None``: 2^18 (256 MiB) photons at a time.
+        The image does not depend on it (up to the order of float64 sums).
     Returns
     -------
     np.ndarray, float64
@@ -381,13 +391,14 @@ def trace_water(
     w = _read_scene(scene)
     per_axis = _check_int(photons_per_axis, "photons_per_axis")
     margin = _check_margin(margin)
+    chunk = chunk_photons(memory_limit, _CHUNK)
     rows, cols = w.receiver_shape
 
     def estimate(lay: _Layout, iors: Sequence[float]) -> tuple[np.ndarray, float]:
         rng = np.random.default_rng(seed) if jitter else None
         flux = np.zeros((len(iors), rows * cols))
         ring_flux = 0.0
-        block = max(1, _CHUNK // lay.nx)
+        block = max(1, chunk // lay.nx)
         for r0 in range(0, lay.ny, block):
             i, j = (
                 a.ravel()
