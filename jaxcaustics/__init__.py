@@ -81,6 +81,9 @@ from ._inverse.design import (
     design_lens as design_lens,
 )
 from ._inverse.design import (
+    design_lens_variants as design_lens_variants,
+)
+from ._inverse.design import (
     fresnel_zones as fresnel_zones,
 )
 from ._inverse.recover import (
@@ -215,6 +218,24 @@ from ._scene import (
 )
 from ._scene import (
     WaterScene as WaterScene,
+)
+from ._sharding import (
+    device_mesh as device_mesh,
+)
+from ._sharding import (
+    gather_to_host as gather_to_host,
+)
+from ._sharding import (
+    map_sharded as map_sharded,
+)
+from ._sharding import (
+    render_batch as render_batch,
+)
+from ._sharding import (
+    stack_scenes as stack_scenes,
+)
+from ._sharding import (
+    unstack_scenes as unstack_scenes,
 )
 from ._spot_light_fit import (
     FitInfo as FitInfo,

@@ -482,10 +482,9 @@ def _splat_gaussian(points, flux, valid, shape, sigma, window):
     return _scatter(shape, dtype, rows, cols, splat)
 
 
-def _scan_sum(fn, index: Array, axis: str | None = None):
+def _scan_sum(fn, index: Array):
     """``sum(fn(k) for k in index)`` as a checkpointed scan (one step in memory at a time;
-    each step is recomputed in the reverse pass). `index`: ``(n,)`` int32, ``n >= 1``;
-    `axis`: inside `jax.shard_map`, the mesh axis the index varies along."""
+    each step is recomputed in the reverse pass). `index`: ``(n,)`` int32, ``n >= 1``."""
     if index.shape[0] == 1:
         return fn(index[0])
 
@@ -495,8 +494,6 @@ def _scan_sum(fn, index: Array, axis: str | None = None):
 
     out = jax.eval_shape(fn, index[0])
     zeros = jax.tree.map(lambda s: jnp.zeros(s.shape, s.dtype), out)
-    if axis is not None:  # the carry varies along the mesh axis, as the index does
-        zeros = jax.tree.map(lambda z: jax.lax.pcast(z, (axis,), to="varying"), zeros)
     total, _ = jax.lax.scan(step, zeros, index)
     return total
 
@@ -532,7 +529,7 @@ def sum_over_batches(fn, operands, batches: int, *, mesh=None):
     arrays, static = eqx.partition(operands, eqx.is_array)
 
     def local(arrays, index):
-        total = _scan_sum(lambda k: fn(eqx.combine(arrays, static), k), index, axis)
+        total = _scan_sum(lambda k: fn(eqx.combine(arrays, static), k), index)
         return jax.tree.map(lambda t: jax.lax.psum(t, axis), total)
 
     sharded = jax.shard_map(
@@ -540,6 +537,10 @@ def sum_over_batches(fn, operands, batches: int, *, mesh=None):
         mesh=mesh,
         in_specs=(PartitionSpec(), PartitionSpec(axis)),
         out_specs=PartitionSpec(),
+        # the renderers' inner loops (rasteriser batches) start from unsharded zeros:
+        # varying-axis types are not tracked through them; the psum makes the result
+        # replicated
+        check_vma=False,
     )
     return sharded(arrays, index)
 

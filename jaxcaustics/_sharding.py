@@ -4,14 +4,29 @@ One vocabulary for every sharded entry point of the library: `devices` is ``None
 of `jax.devices()`, which after `jax.distributed.initialize` spans every host), an int
 ``n`` (the first ``n`` of them) or a sequence of `jax.Device`; the devices form a one-axis
 `jax.sharding.Mesh` named `MESH_AXIS`.
+
+- `map_sharded`: a function over the items of a batch (CSL fits per light direction, the
+  lens design's solves per variant), results gathered to NumPy on every process.
+- `render_batch`: a batch of scenes (`stack_scenes`) rendered with `jax.shard_map`, each
+  device rendering its share; differentiable.
+- `gather_to_host`: NumPy copies of (possibly multi-host) arrays on every process.
+
+Several hosts: run the same script on every host after `jax.distributed.initialize`;
+`jax.devices()` then lists every host's devices, each process computes the shares of the
+devices it drives, and results are gathered with `process_allgather` (see
+``docs/scaling.md``).
 """
 
 from __future__ import annotations
 
+import dataclasses
+import inspect
 from collections.abc import Callable, Sequence
+from concurrent.futures import ThreadPoolExecutor
 
 import equinox as eqx
 import jax
+import jax.numpy as jnp
 import numpy as np
 from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
@@ -46,6 +61,21 @@ def device_mesh(devices: Sequence[jax.Device] | int | None = None) -> Mesh:
     return Mesh(np.asarray(resolve_devices(devices)), (MESH_AXIS,))
 
 
+# module level, so that a repeated call with the same function (a hashable callable)
+# reuses the compiled program; `fn` and the non-array parts of `shared` are static
+
+
+@eqx.filter_jit
+def _vmap_items(fn, shared, piece, split):
+    out = jax.vmap(fn, in_axes=(None, 0))(shared, piece)
+    return jax.lax.with_sharding_constraint(out, split)
+
+
+@eqx.filter_jit
+def _map_items(fn, shared, piece):
+    return jax.lax.map(lambda item: fn(shared, item), piece)
+
+
 def map_sharded(
     fn: Callable,
     shared,
@@ -63,15 +93,25 @@ def map_sharded(
     `per_device` (default ``"vmap"`` on GPU/TPU, ``"map"`` on CPU): ``"vmap"`` vectorises
     a chunk placed with a `NamedSharding` over the devices (XLA splits the work along the
     sharded axis); ``"map"`` gives each device its contiguous share of the chunk and runs
-    it item after item with ``jax.lax.map`` (on a CPU the fit runs 2-4x faster per item
-    than vmapped, where every while-loop and branch waits for the slowest item).
+    it item after item with ``jax.lax.map``, one host thread per device (on a CPU the fit
+    runs 2-4x faster per item than vmapped, where every while-loop and branch waits for
+    the slowest item).
 
     The devices form a one-axis `jax.sharding.Mesh` named `MESH_AXIS`; each chunk of
     `batch` is placed with ``NamedSharding(mesh, PartitionSpec(MESH_AXIS))`` (split along
     its leading axis), `shared` is replicated. `chunk` (default: one item per device) is
     rounded up to a multiple of the device count and the batch is padded (with copies of
     its last item) to a multiple of `chunk`, so every chunk has one shape and the function
-    compiles once. **Returns** a pytree of NumPy arrays with the batch's leading axis.
+    compiles once (once per device with ``"map"``: a single-device program is compiled for
+    its device); a later call with the same `fn` (a module-level function or a hashable
+    callable, not a new lambda) and shapes reuses the compiled programs.
+
+    **Returns** a pytree of NumPy arrays with the batch's leading axis, on every process.
+
+    Several hosts (after `jax.distributed.initialize`, `devices` spanning them): every
+    process must call `map_sharded` with the same arguments (the same script on every
+    host); each computes the shares of the devices it drives and the results are gathered
+    with `process_allgather` (`gather_to_host`), so every process returns all of them.
     """
     devices = resolve_devices(devices)
     leaves = jax.tree.leaves(batch)
@@ -96,44 +136,308 @@ def map_sharded(
     batch = jax.tree.map(pad, batch)
     mesh = Mesh(np.asarray(devices), (MESH_AXIS,))
     split = NamedSharding(mesh, PartitionSpec(MESH_AXIS))
-    replicated = NamedSharding(mesh, PartitionSpec())
-    shared = jax.tree.map(lambda x: jax.device_put(x, replicated) if eqx.is_array(x) else x, shared)
 
     if per_device is None:
         per_device = "map" if devices[0].platform == "cpu" else "vmap"
     if per_device not in ("map", "vmap"):
         raise ValueError(f"`per_device` must be 'map' or 'vmap', got {per_device!r}")
     arrays, static = eqx.partition(shared, eqx.is_array)
+    mine = _addressable(devices)
+    if not mine:
+        raise ValueError(
+            f"`devices` holds none of the devices of process {jax.process_index()}: every "
+            "process must drive at least one of them"
+        )
 
-    @jax.jit
-    def run_vmap(arrays, piece):
-        out = jax.vmap(fn, in_axes=(None, 0))(eqx.combine(arrays, static), piece)
-        return jax.lax.with_sharding_constraint(out, split)
-
-    @jax.jit
-    def run_map(arrays, piece):
-        return jax.lax.map(lambda item: fn(eqx.combine(arrays, static), item), piece)
+    if per_device == "vmap":
+        # `shared` replicated over the devices (over every host's, after
+        # `jax.distributed.initialize`: `device_put` of host data to a global sharding)
+        replicated = NamedSharding(mesh, PartitionSpec())
+        arrays = jax.tree.map(lambda x: jax.device_put(x, replicated), arrays)
+    else:
+        # a copy of `shared` on each device this process drives
+        arrays = {device: jax.device_put(arrays, device) for _, device in mine}
 
     def run(piece):
         if per_device == "vmap":
-            return jax.device_get(run_vmap(arrays, jax.device_put(piece, split)))
-        # each device maps over its contiguous share of the chunk; the calls are
-        # dispatched asynchronously, so the devices work at the same time
+            out = _vmap_items(fn, eqx.combine(arrays, static), jax.device_put(piece, split), split)
+            return gather_to_host(out)
+        # each device maps over its contiguous share of the chunk, called from a thread of
+        # its own: XLA:CPU runs a call on the calling thread, so calls from one thread
+        # would run the (simulated) devices one after the other. On several hosts a
+        # process runs the shares of its own devices only; the per-device results form
+        # one global array split along the batch, gathered on every process.
         share = chunk // n_dev
-        outs = [
-            run_map(
-                jax.device_put(arrays, device),
-                jax.device_put(
-                    jax.tree.map(lambda x, k=k: x[k * share : (k + 1) * share], piece), device
-                ),
-            )
-            for k, device in enumerate(devices)
+
+        def one(k, device):
+            part = jax.tree.map(lambda x: x[k * share : (k + 1) * share], piece)
+            out = _map_items(fn, eqx.combine(arrays[device], static), jax.device_put(part, device))
+            return jax.block_until_ready(out)
+
+        outs = list(pool.map(lambda kd: one(*kd), mine))
+        treedef = jax.tree.structure(outs[0])
+        per_leaf = zip(*(jax.tree.leaves(out) for out in outs), strict=True)
+        whole = [
+            jax.make_array_from_single_device_arrays((chunk,) + xs[0].shape[1:], split, list(xs))
+            for xs in per_leaf
         ]
-        return jax.tree.map(lambda *xs: np.concatenate(xs), *jax.device_get(outs))
+        return gather_to_host(jax.tree.unflatten(treedef, whole))
 
     from tqdm.auto import tqdm
 
     outputs = []
-    for start in tqdm(range(0, padded, chunk), desc=desc, disable=not progress, unit="chunk"):
-        outputs.append(run(jax.tree.map(lambda x, s=start: x[s : s + chunk], batch)))
+    with ThreadPoolExecutor(max_workers=len(mine)) as pool:
+        for start in tqdm(range(0, padded, chunk), desc=desc, disable=not progress, unit="chunk"):
+            outputs.append(run(jax.tree.map(lambda x, s=start: x[s : s + chunk], batch)))
     return jax.tree.map(lambda *xs: np.concatenate(xs)[:n], *outputs)
+
+
+def gather_to_host(tree):
+    """NumPy copies of the arrays of `tree` (a pytree), whole, on every process.
+
+    A fully addressable array (one process: always) is copied with `jax.device_get`; an
+    array spread over several hosts (after `jax.distributed.initialize`) is gathered with
+    `jax.experimental.multihost_utils.process_allgather`, so every process gets the whole
+    array. This is a collective: on several hosts, every process must call it. Leaves that
+    are not arrays are returned as they are."""
+
+    def one(x):
+        if isinstance(x, jax.Array) and not x.is_fully_addressable:
+            from jax.experimental import multihost_utils
+
+            return np.asarray(multihost_utils.process_allgather(x, tiled=True))
+        return np.asarray(jax.device_get(x)) if eqx.is_array(x) else x
+
+    return jax.tree.map(one, tree)
+
+
+def _addressable(devices: Sequence[jax.Device]) -> list[tuple[int, jax.Device]]:
+    """``(position, device)`` of the devices this process drives."""
+    here = jax.process_index()
+    return [(k, d) for k, d in enumerate(devices) if d.process_index == here]
+
+
+# --------------------------------------------------------------------------- batches of scenes
+
+
+def _difference(a, b, path: str, static: bool = False) -> str | None:
+    """Where scene `b` differs from scene `a` in what a batch must share (types, static
+    fields, array shapes and dtypes), as a readable path, or ``None``."""
+    if type(a) is not type(b):
+        return f"{path} is a {type(b).__name__}, not a {type(a).__name__}"
+    if eqx.is_array(a):
+        if np.shape(a) != np.shape(b) or a.dtype != b.dtype:
+            return f"{path} has shape {np.shape(b)} ({b.dtype}), not {np.shape(a)} ({a.dtype})"
+        return None
+    if isinstance(a, eqx.Module):
+        for field in dataclasses.fields(a):
+            found = _difference(
+                getattr(a, field.name),
+                getattr(b, field.name),
+                f"{path}.{field.name}",
+                static=bool(field.metadata.get("static", False)),
+            )
+            if found:
+                return found
+        return None
+    if isinstance(a, list | tuple) and not static:
+        if len(a) != len(b):
+            return f"{path} has {len(b)} items, not {len(a)}"
+        for k, (u, v) in enumerate(zip(a, b, strict=True)):
+            if found := _difference(u, v, f"{path}[{k}]"):
+                return found
+        return None
+    if isinstance(a, int | float) and not isinstance(a, bool) and not static:
+        return None  # a Python number as an array leaf
+    if a != b:
+        return f"{path} is {b!r}, not {a!r}"
+    return None
+
+
+def stack_scenes(scenes: Sequence):
+    """One scene whose array leaves hold `scenes` along a new leading axis: the batch
+    `render_batch` renders.
+
+    **Arguments:** `scenes`, a non-empty sequence of scenes of one type that share every
+    static part (indices of refraction, Fresnel, boundary mode, receiver shape, ...) and
+    the shapes of their arrays (heights grid, ...); their array values (heights, extents,
+    depths, light directions, throws, ...) may differ.
+
+    **Returns:** a scene of the same type with arrays of shape ``(len(scenes), ...)``.
+    Raises a `ValueError` naming the first scene (``scenes[i]``) and field that differ.
+    """
+    scenes = list(scenes)
+    if not scenes:
+        raise ValueError("`scenes` must hold at least one scene")
+    first = scenes[0]
+    if not isinstance(first, eqx.Module):
+        raise ValueError(f"`scenes` must hold scenes, got a {type(first).__name__}")
+    for i, scene in enumerate(scenes[1:], start=1):
+        found = _difference(first, scene, "scene")
+        if found is None and jax.tree.structure(first) != jax.tree.structure(scene):
+            found = "its pytree structure differs"
+        if found:
+            raise ValueError(
+                f"`scenes[{i}]` does not match `scenes[0]`: {found} (a batch shares the "
+                "type, the static parts and the array shapes of its scenes)"
+            )
+
+    def stack(*xs):
+        if all(isinstance(x, np.ndarray | float | int) for x in xs):
+            return np.stack([np.asarray(x) for x in xs])
+        return jnp.stack(xs)
+
+    return jax.tree.map(stack, *scenes)
+
+
+def unstack_scenes(scenes) -> list:
+    """The scenes of a batch made by `stack_scenes`, one by one."""
+    n = _batch_size(scenes)
+    return [jax.tree.map(lambda x, i=i: x[i], scenes) for i in range(n)]
+
+
+def _batch_size(scenes) -> int:
+    leaves = jax.tree.leaves(scenes)
+    if not leaves or any(np.ndim(x) == 0 for x in leaves):
+        raise ValueError(
+            "`scenes` must be a batch of scenes (`stack_scenes`): every array with a leading "
+            "batch axis"
+        )
+    n = int(np.shape(leaves[0])[0])
+    if n == 0 or any(np.shape(x)[0] != n for x in leaves):
+        raise ValueError(
+            "`scenes` arrays must share a non-empty leading batch axis, got leading sizes "
+            f"{sorted({int(np.shape(x)[0]) for x in leaves})}"
+        )
+    return n
+
+
+def _default(method_fn: Callable, name: str):
+    return inspect.signature(method_fn).parameters[name].default
+
+
+def _resolve_auto_knobs(scenes, method: str, method_fn: Callable, knobs: dict) -> dict:
+    """Knobs that ``"auto"`` sizes from concrete scene values (the two-pass window, the
+    triangles' window) become the largest over the batch, so one program renders all."""
+    knobs = dict(knobs)
+    traced = any(isinstance(x, jax.core.Tracer) for x in jax.tree.leaves(scenes))
+    if method == "twopass":
+        names = ("samples_x", "channels_y")
+        if any(knobs.get(k, _default(method_fn, k)) == "auto" for k in names):
+            if traced:
+                raise ValueError(
+                    "samples_x='auto' needs concrete scene values; under jit/grad pass ints"
+                )
+            from ._methods.twopass import auto_window
+
+            hit = knobs.get("hit_iterations", _default(method_fn, "hit_iterations"))
+            sup = knobs.get("supersample", _default(method_fn, "supersample"))
+            windows = np.array([auto_window(s, hit, sup) for s in unstack_scenes(scenes)])
+            knobs["samples_x"], knobs["channels_y"] = (int(v) for v in windows.max(axis=0))
+    elif method == "triangles":
+        visibility = knobs.get("visibility", _default(method_fn, "visibility"))
+        if knobs.get("window", _default(method_fn, "window")) == "auto" and visibility == "exact":
+            if traced:
+                raise ValueError(
+                    "window='auto' needs concrete scene values; under jit/grad pass an int"
+                )
+            from ._methods.triangles import _check_grid, trace_photons, triangle_window
+
+            grid = _check_grid(knobs.get("photons", _default(method_fn, "photons")))
+            hit = knobs.get("hit_iterations", _default(method_fn, "hit_iterations"))
+            extra = {} if knobs.get("batch_size") is None else {"batch_size": knobs["batch_size"]}
+            knobs["window"] = max(
+                triangle_window(trace_photons(s, grid, hit, **extra), s.receiver)
+                for s in unstack_scenes(scenes)
+            )
+    return knobs
+
+
+@eqx.filter_jit
+def _render_sharded(arrays, static, knobs, method_fn, mesh, per_device):
+    """Each device renders its share of the batch (`jax.shard_map`), vectorised or item
+    after item."""
+    knob_arrays, knob_static = eqx.partition(knobs, eqx.is_array)
+
+    def local(arrays, knob_arrays):
+        kw = eqx.combine(knob_arrays, knob_static)
+
+        def one(a):
+            return method_fn(eqx.combine(a, static), **kw).image
+
+        return jax.vmap(one)(arrays) if per_device == "vmap" else jax.lax.map(one, arrays)
+
+    spec = PartitionSpec(MESH_AXIS)
+    # check_vma=False: the methods' loops (scans with zero-initialised carries) are not
+    # written for shard_map's varying-type checks; nothing here communicates
+    return jax.shard_map(
+        local, mesh=mesh, in_specs=(spec, PartitionSpec()), out_specs=spec, check_vma=False
+    )(arrays, knob_arrays)
+
+
+def render_batch(
+    scenes,
+    method: str | None = None,
+    *,
+    devices: Sequence[jax.Device] | int | None = None,
+    per_device: str | None = None,
+    **knobs,
+) -> jax.Array:
+    """Render a batch of scenes (surfaces, lenses, ...), split across `devices`.
+
+    **Arguments:**
+
+    - `scenes`: a batch made by `stack_scenes` (one scene whose arrays carry a leading
+      batch axis of size ``n``), or a sequence of scenes (stacked here).
+    - `method`: as for `render` (default: the scene type's natural method). The method
+      must trace under `jax.vmap`: ``"twopass"`` and ``"triangles"`` do; knobs that
+      ``"auto"`` sizes from scene values (the two-pass window ``samples_x`` /
+      ``channels_y``, the triangles' ``window``) are sized beforehand, the largest over
+      the batch, which needs concrete scenes (under `jax.grad` or `jax.jit` pass ints).
+    - `devices`: ``None`` (all of `jax.devices()`), an int ``n`` (the first ``n``) or a
+      sequence of devices.
+    - `per_device`: ``"vmap"`` (each device renders its share vectorised; the default on
+      GPU/TPU) or ``"map"`` (scene after scene with ``jax.lax.map``: less memory; the
+      default on CPU). Gradients need ``"map"`` for now: reverse-mode through the
+      vectorised ray-surface hit fails inside JAX (a `broadcast_in_dim` error).
+    - `**knobs`: the method's knobs (as for `render`), the same for every scene.
+
+    The batch is padded (with copies of its last scene) to a multiple of the device count,
+    placed with ``NamedSharding(mesh, PartitionSpec(MESH_AXIS))`` and rendered by
+    `jax.shard_map`: each device renders its own contiguous share.
+
+    **Returns:** the images, a `jax.Array` of shape ``(n, rows, cols)`` (``(n, rows,
+    cols, channels)`` with several indices of refraction), left on the devices (split
+    along the batch); differentiable with respect to the scenes' arrays. `gather_to_host`
+    copies it to NumPy (on every process, when the devices span several hosts).
+    """
+    from ._render import DEFAULT_METHOD, METHODS
+
+    if isinstance(scenes, list | tuple):
+        scenes = stack_scenes(scenes)
+    if not isinstance(scenes, eqx.Module):
+        raise ValueError(f"`scenes` must be a batch of scenes, got {type(scenes).__name__}")
+    n = _batch_size(scenes)
+    if method is None:
+        method = DEFAULT_METHOD.get(type(scenes).__name__, "twopass")
+    if method not in METHODS:
+        raise ValueError(f"`method` must be one of {sorted(METHODS)}, got {method!r}")
+    devices = resolve_devices(devices)
+    if per_device is None:
+        per_device = "map" if devices[0].platform == "cpu" else "vmap"
+    if per_device not in ("map", "vmap"):
+        raise ValueError(f"`per_device` must be 'map' or 'vmap', got {per_device!r}")
+    knobs = _resolve_auto_knobs(scenes, method, METHODS[method], knobs)
+
+    mesh = Mesh(np.asarray(devices), (MESH_AXIS,))
+    padded = -(-n // len(devices)) * len(devices)
+
+    def pad(x):
+        xp = np if isinstance(x, np.ndarray) else jnp
+        return xp.concatenate([x, xp.repeat(x[-1:], padded - n, axis=0)])
+
+    arrays, static = eqx.partition(scenes, eqx.is_array)
+    arrays = jax.tree.map(pad, arrays)
+    arrays = jax.device_put(arrays, NamedSharding(mesh, PartitionSpec(MESH_AXIS)))
+    images = _render_sharded(arrays, static, knobs, METHODS[method], mesh, per_device)
+    return images if padded == n else images[:n]

@@ -54,10 +54,11 @@ mesh_scene = jc.MeshScene(
 out = {}
 checks = sys.argv[1:]
 for reconstruction in [c.split("_")[1] for c in checks if c.startswith("triangles_")]:
-    one = caustic_triangles(lens, photons=21, reconstruction=reconstruction, window=6)
-    four = caustic_triangles(
-        lens, photons=21, reconstruction=reconstruction, window=6, devices=4
-    )
+    # a small memory limit: several bands per device and several rasteriser batches
+    # per band (scans inside the sharded loop)
+    small = dict(photons=21, reconstruction=reconstruction, window=6, memory_limit=2**16)
+    one = caustic_triangles(lens, **small)
+    four = caustic_triangles(lens, **small, devices=4)
     out[f"triangles_{reconstruction}"] = [
         float(np.abs(np.asarray(one.image) - np.asarray(four.image)).max()),
         float(np.abs(np.asarray(one.image)).max()),

@@ -25,6 +25,7 @@ target: locally convex lens).
 from __future__ import annotations
 
 import dataclasses
+import inspect
 import math
 import time
 from collections.abc import Callable, Sequence
@@ -192,7 +193,7 @@ class _Problem(eqx.Module):
     scene: LensScene
     log_target: jax.Array  # (rows, cols) log of the screen irradiance to reach
     screen: jax.Array  # (4,) extent
-    weak: float = eqx.field(static=True)  # D of the weak-lens relation
+    weak: jax.Array  # D of the weak-lens relation (a leaf: designs for several throws batch)
     grid: tuple[int, int] = eqx.field(static=True)  # photon grid (vertices)
     boundary_weight: float = eqx.field(static=True)
     regularization: float = eqx.field(static=True)
@@ -483,6 +484,37 @@ def _run_level(fn, solver, u0, args, max_steps: int, history: list, callback, le
     return y, steps, result, compile_s or 0.0, time.perf_counter() - t0
 
 
+def _solve_level(fn, solver, u0, args, max_steps: int):
+    """`_run_level`'s steps as one traceable loop (`jax.lax.while_loop`), for batches of
+    designs spread over devices (`design_lens_variants`): the same step, termination test
+    and loss as `_solver_step`, ``max_steps`` at most.
+
+    **Returns:** ``(u, steps, result, losses)``; ``losses``: ``(max_steps,)``, the loss
+    after each step, NaN after the last."""
+    wrapped = _WithAux(fn)
+    f_struct = jax.eval_shape(fn, u0, args)
+    state = solver.init(wrapped, u0, args, {}, f_struct, None, frozenset())
+    dynamic, static = eqx.partition(state, eqx.is_array)
+
+    def cond(carry):
+        _, _, step, done, _, _ = carry
+        return jnp.logical_and(jnp.logical_not(done), step < max_steps)
+
+    def body(carry):
+        y, dynamic, step, _, _, losses = carry
+        y, state, done, result, loss = _solver_step(
+            fn, solver, y, eqx.combine(dynamic, static), args
+        )
+        dynamic = eqx.partition(state, eqx.is_array)[0]
+        return y, dynamic, step + 1, done, result, losses.at[step].set(loss)
+
+    losses = jnp.full((max_steps,), jnp.nan, dtype=jnp.result_type(u0))
+    carry = (u0, dynamic, jnp.array(0), jnp.array(False), optx.RESULTS.successful, losses)
+    y, _, steps, done, result, losses = jax.lax.while_loop(cond, body, carry)
+    result = optx.RESULTS.where(done, result, optx.RESULTS.max_steps_reached)
+    return y, steps, result, losses
+
+
 # --------------------------------------------------------------------------- the API
 
 
@@ -563,6 +595,120 @@ def design_lens(
     argument before any optimisation starts.
     """
     t_start = time.perf_counter()
+    setup = _prepare(
+        target,
+        width=width,
+        height=height,
+        thickness=thickness,
+        throw=throw,
+        ior=ior,
+        light=light,
+        mask=mask,
+        heights_shape=heights_shape,
+        screen_extent=screen_extent,
+        levels=levels,
+        max_steps=max_steps,
+        solver=solver,
+        oversample=oversample,
+        floor=floor,
+        boundary_weight=boundary_weight,
+        regularization=regularization,
+        start_scale=start_scale,
+        cg_steps=cg_steps,
+        rtol=rtol,
+        predict_photons=predict_photons,
+        max_relief=max_relief,
+        initial=initial,
+    )
+    history: list[float] = []
+    level_reports: list[dict[str, Any]] = []
+    result = optx.RESULTS.successful
+    sol = _make_solver(setup.solver, setup.cg_steps, setup.rtol)
+    objective = _half_squares if setup.solver == "lbfgs" else _transport_residual
+    h = None
+    for k, shape in enumerate(setup.shapes):
+        u, problem = _level_problem(setup, k, h)
+        info = {"level": k, "shape": shape}
+        u, steps, result, compile_s, seconds = _run_level(
+            objective, sol, u, problem, setup.max_steps, history, callback, info
+        )
+        h = _level_heights(problem, u, k, shape, result, throw_errors)
+        level_reports.append(
+            {
+                "shape": shape,
+                "steps": steps,
+                "loss": history[-1] if history else float("nan"),
+                "result": result,
+                "seconds": seconds,
+                "first_step_seconds": compile_s,
+            }
+        )
+    assert h is not None
+    return _finish(setup, h, history, level_reports, result, t_start)
+
+
+@dataclasses.dataclass
+class _Setup:
+    """A checked specification and what every level needs (`_prepare`)."""
+
+    width: float
+    height: float
+    thickness: float
+    throw: float
+    ior: float
+    light: Any
+    target_shape: tuple[int, int]
+    shapes: list[tuple[int, int]]
+    aperture: np.ndarray
+    screen: np.ndarray
+    receiver: PlaneReceiver
+    goal: np.ndarray
+    goal0: np.ndarray
+    flux_scale: float
+    vertical: bool
+    weak: float
+    max_steps: int
+    solver: str
+    oversample: int
+    boundary_weight: float
+    regularization: float
+    start_scale: float
+    cg_steps: int
+    rtol: float
+    predict_photons: int | None
+    max_relief: float | None
+    initial: Any
+    timings: dict[str, float]
+
+
+def _prepare(
+    target,
+    *,
+    width,
+    height,
+    thickness,
+    throw,
+    ior,
+    light,
+    mask,
+    heights_shape,
+    screen_extent,
+    levels,
+    max_steps,
+    solver,
+    oversample,
+    floor,
+    boundary_weight,
+    regularization,
+    start_scale,
+    cg_steps,
+    rtol,
+    predict_photons,
+    max_relief,
+    initial,
+) -> _Setup:
+    """Check a specification (`ValueError` naming the argument) and compute what the
+    levels need: the screen, the scaled target, the weak-lens constant, the level shapes."""
     width = _positive(width, "width")
     height = _positive(height, "height")
     thickness = _positive(thickness, "thickness")
@@ -664,85 +810,118 @@ def design_lens(
         )
     timings = {"initial_guess": time.perf_counter() - t0}
 
-    history: list[float] = []
-    level_reports: list[dict[str, Any]] = []
-    result = optx.RESULTS.successful
-    sol = _make_solver(solver, cg_steps, rtol)
-    objective = _half_squares if solver == "lbfgs" else _transport_residual
-    h = None
-    for k, shape in enumerate(shapes):
-        rows, cols = shape
-        dx, dy = width / cols, height / rows
-        if k == 0 and initial is not None:  # continue from given heights
-            h_start = _resample(np.asarray(initial, float), shape)
-            u = _laplacian(jnp.asarray(h_start), dx, dy) * weak
-        elif k == 0:
-            u = jnp.asarray(-start_scale * np.log(goal0), dtype)
-        else:
-            # carry the heights to the finer grid, then back to the preconditioned variable
-            h_fine = _resample(h, shape)
-            u = _laplacian(jnp.asarray(h_fine), dx, dy) * weak
-        scene = LensScene(
-            HeightField(np.zeros(shape), aperture, "clamp"),
-            light,
-            receiver,
-            thickness,
-            throw,
-            ior=ior,
-        )
-        level_goal = jnp.asarray(_level_target(goal, shape), dtype)
-        problem_grid = (oversample * rows + 1, oversample * cols + 1)
-        problem = _Problem(
-            scene,
-            jnp.log(level_goal * flux_scale),
-            jnp.asarray(screen, dtype),
-            weak,
-            problem_grid,
-            float(boundary_weight),
-            float(regularization),
-            3,
-            _sampling(shape, aperture, problem_grid) if vertical else None,
-            dx,
-            dy,
-        )
-        info = {"level": k, "shape": shape}
-        u, steps, result, compile_s, seconds = _run_level(
-            objective, sol, u, problem, max_steps, history, callback, info
-        )
-        h = np.asarray(problem.heights(u))
-        h = h - h.max()
-        level_reports.append(
-            {
-                "shape": shape,
-                "steps": steps,
-                "loss": history[-1] if history else float("nan"),
-                "result": result,
-                "seconds": seconds,
-                "first_step_seconds": compile_s,
-            }
-        )
-        if throw_errors and result not in (
-            optx.RESULTS.successful,
-            optx.RESULTS.max_steps_reached,
-        ):
-            raise RuntimeError(f"level {k} ({shape}): the solver failed: {result}")
-        if not np.all(np.isfinite(h)):
-            raise RuntimeError(f"level {k} ({shape}): the heights are not finite")
+    return _Setup(
+        width=width,
+        height=height,
+        thickness=thickness,
+        throw=throw,
+        ior=ior,
+        light=light,
+        target_shape=tuple(t.shape),
+        shapes=shapes,
+        aperture=aperture,
+        screen=screen,
+        receiver=receiver,
+        goal=goal,
+        goal0=goal0,
+        flux_scale=flux_scale,
+        vertical=vertical,
+        weak=weak,
+        max_steps=max_steps,
+        solver=solver,
+        oversample=oversample,
+        boundary_weight=float(boundary_weight),
+        regularization=float(regularization),
+        start_scale=float(start_scale),
+        cg_steps=cg_steps,
+        rtol=rtol,
+        predict_photons=predict_photons,
+        max_relief=max_relief,
+        initial=initial,
+        timings=timings,
+    )
 
-    assert h is not None
-    if max_relief is not None and h.max() - h.min() > max_relief:
-        h = fresnel_zones(h, max_relief)
+
+def _level_problem(setup: _Setup, k: int, h: np.ndarray | None) -> tuple[jax.Array, _Problem]:
+    """Level `k`'s start (the preconditioned variable ``u``) and its `_Problem`; `h`: the
+    previous level's heights (``None`` for the first level)."""
+    shape = setup.shapes[k]
+    rows, cols = shape
+    dx, dy = setup.width / cols, setup.height / rows
+    dtype = jnp.result_type(float)
+    weak = setup.weak
+    if k == 0 and setup.initial is not None:  # continue from given heights
+        h_start = _resample(np.asarray(setup.initial, float), shape)
+        u = _laplacian(jnp.asarray(h_start), dx, dy) * weak
+    elif k == 0:
+        u = jnp.asarray(-setup.start_scale * np.log(setup.goal0), dtype)
+    else:
+        # carry the heights to the finer grid, then back to the preconditioned variable
+        h_fine = _resample(h, shape)
+        u = _laplacian(jnp.asarray(h_fine), dx, dy) * weak
+    scene = LensScene(
+        HeightField(np.zeros(shape), setup.aperture, "clamp"),
+        setup.light,
+        setup.receiver,
+        setup.thickness,
+        setup.throw,
+        ior=setup.ior,
+    )
+    level_goal = jnp.asarray(_level_target(setup.goal, shape), dtype)
+    problem_grid = (setup.oversample * rows + 1, setup.oversample * cols + 1)
+    problem = _Problem(
+        scene,
+        jnp.log(level_goal * setup.flux_scale),
+        jnp.asarray(setup.screen, dtype),
+        jnp.asarray(weak, dtype),
+        problem_grid,
+        setup.boundary_weight,
+        setup.regularization,
+        3,
+        _sampling(shape, setup.aperture, problem_grid) if setup.vertical else None,
+        dx,
+        dy,
+    )
+    return u, problem
+
+
+def _level_heights(problem: _Problem, u, k: int, shape, result, throw_errors: bool) -> np.ndarray:
+    """The heights of a solved level (``max = 0``); raises if the solver failed."""
+    h = np.asarray(problem.heights(jnp.asarray(u)))
+    h = h - h.max()
+    if throw_errors and result not in (
+        optx.RESULTS.successful,
+        optx.RESULTS.max_steps_reached,
+    ):
+        raise RuntimeError(f"level {k} ({shape}): the solver failed: {result}")
+    if not np.all(np.isfinite(h)):
+        raise RuntimeError(f"level {k} ({shape}): the heights are not finite")
+    return h
+
+
+def _finish(setup: _Setup, h, history, level_reports, result, t_start: float) -> LensDesign:
+    """Fold the relief if asked, check the blank, predict the caustic: the `LensDesign`."""
+    thickness, timings = setup.thickness, dict(setup.timings)
+    if setup.max_relief is not None and h.max() - h.min() > setup.max_relief:
+        h = fresnel_zones(h, setup.max_relief)
     if thickness + h.min() <= 0.0:
         msg = (
             f"`thickness` {thickness} m is too thin for the design: its relief is "
             f"{h.max() - h.min():.4g} m, so the surface dips through the bottom face"
         )
         raise ValueError(msg)
-    final = LensScene(HeightField(h, aperture, "clamp"), light, receiver, thickness, throw, ior=ior)
+    final = LensScene(
+        HeightField(h, setup.aperture, "clamp"),
+        setup.light,
+        setup.receiver,
+        thickness,
+        setup.throw,
+        ior=setup.ior,
+    )
     t0 = time.perf_counter()
     from .._methods.triangles import caustic_triangles
 
-    n_pred = predict_photons or 4 * max(t.shape) + 1
+    n_pred = setup.predict_photons or 4 * max(setup.target_shape) + 1
     predicted = np.asarray(caustic_triangles(final, photons=n_pred).image)
     timings["predict"] = time.perf_counter() - t0
     timings["total"] = time.perf_counter() - t_start
@@ -750,9 +929,140 @@ def design_lens(
         heights=h,
         scene=final,
         predicted=predicted,
-        target=goal * flux_scale,
+        target=setup.goal * setup.flux_scale,
         loss_history=history,
         levels=level_reports,
         result=result,
         timings=timings,
     )
+
+
+class _LevelSolve(eqx.Module):
+    """``(shared, (u0, problem)) -> _solve_level(...)`` for `map_sharded`: a hashable
+    callable, so that designs with the same settings reuse the compiled solve."""
+
+    objective: Callable = eqx.field(static=True)
+    solver: Any = eqx.field(static=True)
+    max_steps: int = eqx.field(static=True)
+
+    def __call__(self, shared, item):
+        u0, problem = item
+        return _solve_level(self.objective, self.solver, u0, problem, self.max_steps)
+
+
+def design_lens_variants(
+    target,
+    *,
+    throws: Sequence[float],
+    devices: Sequence[jax.Device] | int | None = None,
+    per_device: Literal["map", "vmap"] | None = None,
+    throw_errors: bool = True,
+    **design_kwargs,
+) -> list[LensDesign]:
+    """Design one lens per throw distance of `throws` (the same target, blank and light),
+    the designs spread over `devices`.
+
+    `design_lens` steps its solver from Python (a loss after every step, a callback, a
+    progress report), so it cannot itself run inside a sharded program; here each level's
+    solve runs as one traced loop (the same solver steps, `jax.lax.while_loop`) for every
+    variant at once, the variants split across the devices by `map_sharded` (each device
+    solves its share one after the other with ``jax.lax.map`` on CPU, vectorised on
+    GPU/TPU; on several hosts each process solves its own devices' shares and the results
+    are gathered on every process). The set-up between levels (resampling, the next
+    level's start) and the final predicted caustics run on the host.
+
+    **Arguments:**
+
+    - `target`: as for `design_lens`.
+    - `throws`: distances from the bottom face to the screen, metres, one design each.
+    - `devices`: ``None`` (all of `jax.devices()`), an int ``n`` (the first ``n``) or a
+      sequence of devices.
+    - `per_device`: ``"map"`` or ``"vmap"``; see `map_sharded`.
+    - `throw_errors`: raise if a variant's solver fails at some level.
+    - `**design_kwargs`: the keyword arguments of `design_lens` (``width``, ``height``,
+      ``thickness`` required), except ``throw`` and ``callback`` (no per-step calls from
+      inside the sharded loop).
+
+    **Returns:** a list of `LensDesign`, one per throw, in order; each one's
+    ``loss_history`` holds its own steps, its ``levels`` report the steps and final loss
+    of each level, and their ``seconds`` the wall time of the level's sharded solve (all
+    variants together; ``first_step_seconds`` is NaN). Invalid specifications raise
+    `ValueError` before any optimisation starts.
+    """
+    from .._sharding import map_sharded, resolve_devices
+
+    t_start = time.perf_counter()
+    for name in ("throw", "callback"):
+        if name in design_kwargs:
+            raise ValueError(
+                f"`{name}` is not an argument of design_lens_variants"
+                + (" (give `throws`)" if name == "throw" else " (no per-step calls)")
+            )
+    try:
+        throws = [float(t) for t in throws]
+    except TypeError as err:
+        raise ValueError(f"`throws` must be a sequence of numbers, got {throws!r}") from err
+    if not throws:
+        raise ValueError("`throws` must hold at least one throw distance")
+    resolve_devices(devices)  # a bad `devices` fails before the set-up
+    unknown = set(design_kwargs) - set(inspect.signature(design_lens).parameters)
+    if unknown:
+        raise ValueError(f"unknown arguments of design_lens: {sorted(unknown)}")
+    defaults = {
+        k: p.default
+        for k, p in inspect.signature(design_lens).parameters.items()
+        if p.default is not inspect.Parameter.empty and k not in ("throw_errors", "callback")
+    }
+    spec = {**defaults, **design_kwargs}
+    for name in ("width", "height", "thickness"):
+        if name not in spec:
+            raise ValueError(f"`{name}` is required (metres)")
+    setups = []
+    for i, throw in enumerate(throws):
+        try:
+            setups.append(_prepare(target, **{**spec, "throw": throw}))
+        except ValueError as err:
+            raise ValueError(f"throws[{i}] = {throw}: {err}") from err
+    first = setups[0]
+    sol = _make_solver(first.solver, first.cg_steps, first.rtol)
+    objective = _half_squares if first.solver == "lbfgs" else _transport_residual
+    max_steps = first.max_steps
+
+    solve = _LevelSolve(objective, sol, max_steps)
+
+    histories: list[list[float]] = [[] for _ in throws]
+    reports: list[list[dict[str, Any]]] = [[] for _ in throws]
+    results = [optx.RESULTS.successful] * len(throws)
+    heights: list[np.ndarray | None] = [None] * len(throws)
+    for k, shape in enumerate(first.shapes):
+        t0 = time.perf_counter()
+        items = [_level_problem(setup, k, h) for setup, h in zip(setups, heights, strict=True)]
+        batch = jax.tree.map(lambda *xs: np.stack([np.asarray(x) for x in xs]), *items)
+        u, steps, result, losses = map_sharded(
+            solve, None, batch, devices=devices, per_device=per_device
+        )
+        seconds = time.perf_counter() - t0
+        for i, (_, problem) in enumerate(items):
+            n_steps = int(steps[i])
+            results[i] = jax.tree.map(lambda x, i=i: jnp.asarray(x[i]), result)
+            histories[i].extend(float(v) for v in losses[i, :n_steps])
+            try:
+                heights[i] = _level_heights(problem, u[i], k, shape, results[i], throw_errors)
+            except RuntimeError as err:
+                raise RuntimeError(f"throws[{i}] = {throws[i]}: {err}") from err
+            reports[i].append(
+                {
+                    "shape": shape,
+                    "steps": n_steps,
+                    "loss": histories[i][-1] if histories[i] else float("nan"),
+                    "result": results[i],
+                    "seconds": seconds,
+                    "first_step_seconds": float("nan"),
+                }
+            )
+    return [
+        _finish(setup, h, history, report, result, t_start)
+        for setup, h, history, report, result in zip(
+            setups, heights, histories, reports, results, strict=True
+        )
+    ]
