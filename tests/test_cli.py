@@ -145,9 +145,23 @@ def test_readme_python_example_runs(tmp_path, monkeypatch):
     assert (tmp_path / "caustics.png").is_file()
 
 
+def test_readme_tolerance_example_runs(tmp_path, monkeypatch):
+    """The README's `render(scene, tolerance=...)` lines, run after its first example
+    (whose scene they render)."""
+    readme = (Path(__file__).resolve().parent.parent / "README.md").read_text()
+    blocks = readme.split("```python\n")
+    monkeypatch.chdir(tmp_path)
+    namespace: dict = {}
+    for block in blocks[1:3]:
+        exec(compile(block.split("```", 1)[0], "README.md", "exec"), namespace)
+    choice = namespace["stats"]["choice"]
+    assert choice.method == "twopass" and choice.expected_error * choice.margin <= 0.02
+    assert namespace["image"].shape == (300, 400)
+
+
 def test_readme_glass_example_runs(tmp_path, monkeypatch):
     readme = (Path(__file__).resolve().parent.parent / "README.md").read_text()
-    code = readme.split("```python\n")[2].split("```", 1)[0]
+    code = readme.split("```python\n")[3].split("```", 1)[0]
     monkeypatch.chdir(tmp_path)
     namespace: dict = {}
     exec(compile(code, "README.md", "exec"), namespace)
@@ -159,7 +173,7 @@ def test_readme_glass_example_runs(tmp_path, monkeypatch):
 @pytest.mark.slow
 def test_readme_design_example_runs(tmp_path, monkeypatch):
     readme = (Path(__file__).resolve().parent.parent / "README.md").read_text()
-    code = readme.split("```python\n")[3].split("```", 1)[0]
+    code = readme.split("```python\n")[4].split("```", 1)[0]
     monkeypatch.chdir(tmp_path)
     namespace: dict = {}
     exec(compile(code, "README.md", "exec"), namespace)

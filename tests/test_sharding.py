@@ -151,6 +151,7 @@ def run_script(tmp_path, *args):
     assert "OK" in result.stdout
 
 
+@pytest.mark.slow  # about 11 s; the default run checks sharding in test_sharding_photons
 def test_render_batch_sharded_agrees_with_single_device(tmp_path):
     run_script(tmp_path)
 
