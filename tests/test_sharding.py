@@ -6,15 +6,12 @@ devices (``XLA_FLAGS=--xla_force_host_platform_device_count=4``, which must be s
 JAX starts) and compare against single-device runs of the same programs.
 """
 
-import os
-import subprocess
-import sys
 import textwrap
-from pathlib import Path
 
 import jax
 import numpy as np
 import pytest
+from _subprocess import run_python
 
 import jaxcaustics as jc
 from jaxcaustics._inverse.design import design_lens_variants
@@ -25,8 +22,6 @@ from jaxcaustics._sharding import (
     stack_scenes,
     unstack_scenes,
 )
-
-REPO = Path(__file__).resolve().parents[1]
 
 SCRIPT = textwrap.dedent(
     """
@@ -134,21 +129,7 @@ SCRIPT = textwrap.dedent(
 
 
 def run_script(tmp_path, *args):
-    script = tmp_path / "sharding.py"
-    script.write_text(SCRIPT)
-    env = dict(os.environ)
-    env["PYTHONPATH"] = str(REPO) + os.pathsep + env.get("PYTHONPATH", "")
-    env["JAX_PLATFORMS"] = "cpu"
-    result = subprocess.run(
-        [sys.executable, str(script), *args],
-        capture_output=True,
-        text=True,
-        env=env,
-        timeout=1200,
-        cwd=tmp_path,
-    )
-    assert result.returncode == 0, result.stderr[-4000:]
-    assert "OK" in result.stdout
+    assert "OK" in run_python(tmp_path, SCRIPT, *args, timeout=1200)
 
 
 @pytest.mark.slow  # about 11 s; the default run checks sharding in test_sharding_photons

@@ -6,14 +6,9 @@ starts, and the test session's JAX has started already).
 """
 
 import json
-import os
-import subprocess
-import sys
-from pathlib import Path
 
 import pytest
-
-REPO = Path(__file__).resolve().parents[1]
+from _subprocess import run_python
 
 SCRIPT = r"""
 import json
@@ -99,21 +94,8 @@ print(json.dumps(out))
 
 
 def run_script(tmp_path, *checks):
-    script = tmp_path / "sharded_photons.py"
-    script.write_text(SCRIPT)
-    env = dict(os.environ)
-    env["PYTHONPATH"] = str(REPO) + os.pathsep + env.get("PYTHONPATH", "")
-    env["JAX_PLATFORMS"] = "cpu"
-    result = subprocess.run(
-        [sys.executable, str(script), *checks],
-        capture_output=True,
-        text=True,
-        env=env,
-        timeout=900,
-        cwd=tmp_path,
-    )
-    assert result.returncode == 0, result.stderr[-4000:]
-    return json.loads(result.stdout.strip().splitlines()[-1])
+    stdout = run_python(tmp_path, SCRIPT, *checks)
+    return json.loads(stdout.strip().splitlines()[-1])
 
 
 def check_triangles(entry):

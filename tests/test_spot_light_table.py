@@ -8,16 +8,13 @@ degrees, so neither the matching nor the interpolation can rely on slot order or
 """
 
 import importlib.util
-import os
-import subprocess
-import sys
 import textwrap
-from pathlib import Path
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from _subprocess import run_python
 
 from jaxcaustics._light_view import orthonormal_basis
 from jaxcaustics._spot_light_table import (
@@ -39,7 +36,6 @@ N = 24
 K = 3
 CENTRE = np.array([0.1, -0.2, 0.3])
 SIZE = 1.0
-REPO = Path(__file__).resolve().parents[1]
 
 
 def unit(x):
@@ -502,21 +498,7 @@ SHARDING_SCRIPT = textwrap.dedent(
 
 
 def run_sharding_script(tmp_path, *args):
-    script = tmp_path / "sharding.py"
-    script.write_text(SHARDING_SCRIPT)
-    env = dict(os.environ)
-    env["PYTHONPATH"] = str(REPO) + os.pathsep + env.get("PYTHONPATH", "")
-    env["JAX_PLATFORMS"] = "cpu"
-    result = subprocess.run(
-        [sys.executable, str(script), *args],
-        capture_output=True,
-        text=True,
-        env=env,
-        timeout=900,
-        cwd=tmp_path,
-    )
-    assert result.returncode == 0, result.stderr[-4000:]
-    assert "OK" in result.stdout
+    assert "OK" in run_python(tmp_path, SHARDING_SCRIPT, *args)
 
 
 def test_map_sharded_agrees_with_single_device(tmp_path):
