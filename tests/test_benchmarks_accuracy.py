@@ -76,7 +76,9 @@ def test_bench_accuracy_quick(tmp_path):
             if not row["choosable"]:
                 continue
             # the row's knobs as stored, resolved for this receiver, run through render
-            knobs = bench.resolve_knobs(row["knobs"], scene.receiver.shape)
+            knobs = jc._choose.resolve_knobs(
+                row["method"], row["knobs"], scene.receiver.shape, result["pixels"]
+            )
             image = np.asarray(jc.render(bench.scene_for_row(scene, row), row["method"], **knobs))
             assert image.shape == tuple(result["pixels"])
             assert np.all(np.isfinite(image)) and image.sum() > 0
