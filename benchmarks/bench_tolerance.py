@@ -31,7 +31,7 @@ import numpy as np
 import trimesh
 
 import jaxcaustics as jc
-from jaxcaustics._choose import as_mesh_scene, resolve_knobs
+from jaxcaustics._choose import allowed_rows, as_mesh_scene, resolve_knobs
 
 OUTPUT = Path(__file__).parent / "results"
 
@@ -84,17 +84,10 @@ def held_out_scenes(pixels: int = 32) -> dict:
     }
 
 
-def pixels_of(row: dict) -> tuple[int, int]:
-    """The receiver shape a table row was measured at."""
-    for entry in jc.accuracy_table()["kinds"].values():
-        if any(r is row for r in entry["rows"]):
-            return tuple(entry["pixels"])
-    raise ValueError("`row` is not in the accuracy table")
-
-
-def render_row(scene, row: dict):
-    """Render `scene` with a table row's method and knobs, as `render(tolerance=)` does."""
-    knobs = resolve_knobs(row["method"], row["knobs"], scene.receiver.shape, pixels_of(row))
+def render_row(scene, row: dict, table_pixels):
+    """Render `scene` with a table row's method and knobs (measured at `table_pixels`), as
+    `render(tolerance=)` does."""
+    knobs = resolve_knobs(row["method"], row["knobs"], scene.receiver.shape, table_pixels)
     if row.get("as_mesh"):
         scene = as_mesh_scene(scene, row["as_mesh"]["subdivisions"])
     return jc.render(scene, row["method"], **knobs)
@@ -125,18 +118,11 @@ def measure_kind(kind: str, scene, ref_knobs: dict, log=print) -> list[dict]:
     # twice the photons per axis of `held_out_scenes`: the reference's own error then falls
     # about 4x, below the tightest tolerances (as in the slow tests)
     ref = jc.reference_image(scene, **{k: 2 * v for k, v in ref_knobs.items()})
-    allowed = []
-    for row in table["rows"]:
-        if not row.get("choosable", True):
-            continue
-        target = (
-            as_mesh_scene(scene, row["as_mesh"]["subdivisions"]) if row.get("as_mesh") else scene
-        )
-        if jc.method_support(row["method"], target) is None:
-            allowed.append(row)
+    choosable = [r for r in table["rows"] if r.get("choosable", True)]
+    allowed, _ = allowed_rows(scene, choosable)
     measured = []
     for row in allowed:
-        image, t, first = timed(lambda row=row: render_row(scene, row))
+        image, t, first = timed(lambda row=row: render_row(scene, row, table["pixels"]))
         measured.append(dict(row=row, error=jc.image_error(image, ref), time_s=t, first_s=first))
         log(
             f"  {kind} {row['method']} {row['knobs']} {row.get('as_mesh')}: "
@@ -145,16 +131,7 @@ def measure_kind(kind: str, scene, ref_knobs: dict, log=print) -> list[dict]:
     out = []
     for tol in sorted(set(tolerances_for(allowed, jc._choose.DEFAULT_MARGIN))):
         choice = jc.choose_method(scene, tol)
-        picked = next(
-            m
-            for m in measured
-            if m["row"]["method"] == choice.method
-            and resolve_knobs(
-                m["row"]["method"], m["row"]["knobs"], scene.receiver.shape, pixels_of(m["row"])
-            )
-            == choice.knobs
-            and (m["row"].get("as_mesh") or None) == choice.as_mesh
-        )
+        picked = next(m for m in measured if m["row"] is choice.row)
         meeting = [m for m in measured if m["error"] <= tol]
         fastest = min(meeting, key=lambda m: m["time_s"]) if meeting else None
         out.append(

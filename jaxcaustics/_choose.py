@@ -67,6 +67,7 @@ class Choice:
     - `candidates`: how many settings of the table the scene's effects allow, and
       `meeting`: how many of them meet the tolerance.
     - `excluded`: ``{method: reason}`` for the table's methods the scene rules out.
+    - `row`: the table row chosen, as stored.
     """
 
     kind: str
@@ -82,6 +83,7 @@ class Choice:
     candidates: int
     meeting: int
     excluded: dict[str, str]
+    row: dict[str, Any]
 
     def __str__(self) -> str:
         knobs = ", ".join(f"{k}={v!r}" for k, v in self.knobs.items())
@@ -134,6 +136,29 @@ def reference_image(scene, **knobs) -> np.ndarray:
         "moving_light": reference.trace_ellipsoid,
     }[scene_kind(scene)]
     return np.asarray(tracer(scene, **knobs))
+
+
+def allowed_rows(scene, rows: list[dict]) -> tuple[list[dict], dict[str, str]]:
+    """The table `rows` whose method can render `scene` (`method_support`; rows with
+    ``as_mesh`` only for an `EllipsoidScene`, judged on its mesh), and ``{method:
+    reason}`` for the methods ruled out."""
+    meshes: dict[int, MeshScene] = {}  # one mesh per subdivision level
+    allowed, excluded = [], {}
+    for row in rows:
+        target = scene
+        if row.get("as_mesh"):
+            if not isinstance(scene, EllipsoidScene):
+                continue
+            k = row["as_mesh"]["subdivisions"]
+            if k not in meshes:
+                meshes[k] = as_mesh_scene(scene, k)
+            target = meshes[k]
+        reason = method_support(row["method"], target)
+        if reason is None:
+            allowed.append(row)
+        else:
+            excluded.setdefault(row["method"], reason)
+    return allowed, excluded
 
 
 @functools.cache
@@ -315,19 +340,7 @@ def choose_method(
         rows = [r for r in rows if r["method"] == method]
         if not rows:
             raise ValueError(f"`method` {method!r} has no measured settings for {kind} scenes")
-    excluded: dict[str, str] = {}
-    allowed = []
-    for row in rows:
-        target = scene
-        if row.get("as_mesh"):
-            if not isinstance(scene, EllipsoidScene):
-                continue
-            target = as_mesh_scene(scene, row["as_mesh"]["subdivisions"])
-        reason = method_support(row["method"], target)
-        if reason is None:
-            allowed.append(row)
-        else:
-            excluded.setdefault(row["method"], reason)
+    allowed, excluded = allowed_rows(scene, rows)
     if not allowed:
         raise ValueError(f"no measured method can render this {kind} scene: {excluded}")
     meeting = [r for r in allowed if r["error"] * margin <= tolerance]
@@ -357,4 +370,5 @@ def choose_method(
         candidates=len(allowed),
         meeting=len(meeting),
         excluded=excluded,
+        row=row,
     )
