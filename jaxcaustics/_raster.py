@@ -482,20 +482,38 @@ def _splat_gaussian(points, flux, valid, shape, sigma, window):
     return _scatter(shape, dtype, rows, cols, splat)
 
 
-def _scan_sum(fn, index: Array):
-    """``sum(fn(k) for k in index)`` as a checkpointed scan (one step in memory at a time;
-    each step is recomputed in the reverse pass). `index`: ``(n,)`` int32, ``n >= 1``."""
-    if index.shape[0] == 1:
-        return fn(index[0])
+def _scan_sum(fn, xs):
+    """``sum(fn(x) for x in xs)`` over the leading axis of the pytree `xs` (size >= 1) as a
+    checkpointed scan: one step in memory at a time, each step recomputed in the reverse
+    pass."""
+    first = jax.tree.map(lambda x: x[0], xs)
+    if jax.tree.leaves(xs)[0].shape[0] == 1:
+        return fn(first)
 
     @jax.checkpoint
-    def step(total, k):
-        return jax.tree.map(jnp.add, total, fn(k)), None
+    def step(total, x):
+        return jax.tree.map(jnp.add, total, fn(x)), None
 
-    out = jax.eval_shape(fn, index[0])
-    zeros = jax.tree.map(lambda s: jnp.zeros(s.shape, s.dtype), out)
-    total, _ = jax.lax.scan(step, zeros, index)
+    zeros = jax.tree.map(lambda s: jnp.zeros(s.shape, s.dtype), jax.eval_shape(fn, first))
+    total, _ = jax.lax.scan(step, zeros, xs)
     return total
+
+
+DEFAULT_MEMORY_LIMIT = 1 << 30  # bytes: the photon renderers' default buffer budget (1 GiB)
+
+
+def check_int(value, name: str, low: int) -> int:
+    """`value` as an int, or a `ValueError` naming `name` unless it is an int >= `low`."""
+    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < low:
+        raise ValueError(f"`{name}` must be an int >= {low}, got {value!r}")
+    return int(value)
+
+
+def check_memory_limit(memory_limit) -> int:
+    """`memory_limit` in bytes (``None``: `DEFAULT_MEMORY_LIMIT`), checked."""
+    if memory_limit is None:
+        return DEFAULT_MEMORY_LIMIT
+    return check_int(memory_limit, "memory_limit", 1)
 
 
 def sum_over_batches(fn, operands, batches: int, *, mesh=None):
@@ -558,12 +576,4 @@ def sum_in_batches(raster, batch_size: int, *arrays):
     pad = chunks * batch_size - count
     padded = [jnp.pad(a, [(0, pad)] + [(0, 0)] * (a.ndim - 1)) for a in arrays]
     stacked = [a.reshape((chunks, batch_size) + a.shape[1:]) for a in padded]
-
-    @jax.checkpoint
-    def step(total, chunk):
-        return jax.tree.map(jnp.add, total, raster(*chunk)), None
-
-    first = [a[0] for a in stacked]
-    zeros = jax.tree.map(lambda s: jnp.zeros(s.shape, s.dtype), jax.eval_shape(raster, *first))
-    total, _ = jax.lax.scan(step, zeros, stacked)
-    return total
+    return _scan_sum(lambda chunk: raster(*chunk), stacked)

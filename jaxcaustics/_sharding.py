@@ -114,12 +114,7 @@ def map_sharded(
     with `process_allgather` (`gather_to_host`), so every process returns all of them.
     """
     devices = resolve_devices(devices)
-    leaves = jax.tree.leaves(batch)
-    if not leaves:
-        raise ValueError("`batch` must hold arrays")
-    n = int(np.shape(leaves[0])[0])
-    if n == 0 or any(np.shape(leaf)[0] != n for leaf in leaves):
-        raise ValueError("`batch` arrays must share a non-empty leading axis")
+    n = _batch_size(batch, "batch")
     n_dev = len(devices)
     if chunk is None:
         chunk = n_dev
@@ -129,18 +124,10 @@ def map_sharded(
     chunk = min(chunk, -(-n // n_dev) * n_dev)
     padded = -(-n // chunk) * chunk
 
-    def pad(x):
-        x = np.asarray(x)
-        return np.concatenate([x, np.repeat(x[-1:], padded - n, axis=0)])
-
-    batch = jax.tree.map(pad, batch)
-    mesh = Mesh(np.asarray(devices), (MESH_AXIS,))
+    batch = jax.tree.map(lambda x: _pad_leading(np.asarray(x), padded), batch)
+    mesh = device_mesh(devices)
     split = NamedSharding(mesh, PartitionSpec(MESH_AXIS))
-
-    if per_device is None:
-        per_device = "map" if devices[0].platform == "cpu" else "vmap"
-    if per_device not in ("map", "vmap"):
-        raise ValueError(f"`per_device` must be 'map' or 'vmap', got {per_device!r}")
+    per_device = _per_device(per_device, devices)
     arrays, static = eqx.partition(shared, eqx.is_array)
     mine = _addressable(devices)
     if not mine:
@@ -296,20 +283,34 @@ def unstack_scenes(scenes) -> list:
     return [jax.tree.map(lambda x, i=i: x[i], scenes) for i in range(n)]
 
 
-def _batch_size(scenes) -> int:
-    leaves = jax.tree.leaves(scenes)
+def _batch_size(tree, name: str = "scenes") -> int:
+    """The common leading (batch) size of the arrays of `tree`, named `name` in errors."""
+    leaves = jax.tree.leaves(tree)
     if not leaves or any(np.ndim(x) == 0 for x in leaves):
-        raise ValueError(
-            "`scenes` must be a batch of scenes (`stack_scenes`): every array with a leading "
-            "batch axis"
-        )
+        raise ValueError(f"`{name}` must hold arrays, each with a leading batch axis")
     n = int(np.shape(leaves[0])[0])
     if n == 0 or any(np.shape(x)[0] != n for x in leaves):
         raise ValueError(
-            "`scenes` arrays must share a non-empty leading batch axis, got leading sizes "
+            f"`{name}` arrays must share a non-empty leading batch axis, got leading sizes "
             f"{sorted({int(np.shape(x)[0]) for x in leaves})}"
         )
     return n
+
+
+def _per_device(per_device: str | None, devices: list[jax.Device]) -> str:
+    """`per_device` checked, or its default: ``"map"`` on CPU, ``"vmap"`` elsewhere."""
+    if per_device is None:
+        return "map" if devices[0].platform == "cpu" else "vmap"
+    if per_device not in ("map", "vmap"):
+        raise ValueError(f"`per_device` must be 'map' or 'vmap', got {per_device!r}")
+    return per_device
+
+
+def _pad_leading(x, size: int):
+    """`x` (NumPy or JAX) padded along its leading axis to `size` with copies of its last
+    item."""
+    xp = np if isinstance(x, np.ndarray) else jnp
+    return xp.concatenate([x, xp.repeat(x[-1:], size - x.shape[0], axis=0)])
 
 
 def _default(method_fn: Callable, name: str):
@@ -423,21 +424,13 @@ def render_batch(
     if method not in METHODS:
         raise ValueError(f"`method` must be one of {sorted(METHODS)}, got {method!r}")
     devices = resolve_devices(devices)
-    if per_device is None:
-        per_device = "map" if devices[0].platform == "cpu" else "vmap"
-    if per_device not in ("map", "vmap"):
-        raise ValueError(f"`per_device` must be 'map' or 'vmap', got {per_device!r}")
+    per_device = _per_device(per_device, devices)
     knobs = _resolve_auto_knobs(scenes, method, METHODS[method], knobs)
 
-    mesh = Mesh(np.asarray(devices), (MESH_AXIS,))
+    mesh = device_mesh(devices)
     padded = -(-n // len(devices)) * len(devices)
-
-    def pad(x):
-        xp = np if isinstance(x, np.ndarray) else jnp
-        return xp.concatenate([x, xp.repeat(x[-1:], padded - n, axis=0)])
-
     arrays, static = eqx.partition(scenes, eqx.is_array)
-    arrays = jax.tree.map(pad, arrays)
+    arrays = jax.tree.map(lambda x: _pad_leading(x, padded), arrays)
     arrays = jax.device_put(arrays, NamedSharding(mesh, PartitionSpec(MESH_AXIS)))
     images = _render_sharded(arrays, static, knobs, METHODS[method], mesh, per_device)
     return images if padded == n else images[:n]

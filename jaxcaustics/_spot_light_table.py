@@ -71,8 +71,6 @@ from ._light_view import orthonormal_basis
 from ._sharding import map_sharded, resolve_devices
 from ._spot_lights import SpotLights, sample_light_plane
 
-"""Name of the device-mesh axis along which directions (and edges) are sharded."""
-
 DEFAULT_MATCH_FRACTION = 0.25
 """Default `match_threshold`, as a fraction of the object's size."""
 

@@ -491,9 +491,7 @@ def _solve_level(fn, solver, u0, args, max_steps: int):
 
     **Returns:** ``(u, steps, result, losses)``; ``losses``: ``(max_steps,)``, the loss
     after each step, NaN after the last."""
-    wrapped = _WithAux(fn)
-    f_struct = jax.eval_shape(fn, u0, args)
-    state = solver.init(wrapped, u0, args, {}, f_struct, None, frozenset())
+    state = _solver_init(fn, solver, u0, args)
     dynamic, static = eqx.partition(state, eqx.is_array)
 
     def cond(carry):

@@ -46,11 +46,15 @@ from .._gbuffer import (
 )
 from .._light_view import LightView, light_view
 from .._mesh import MeshScene
-from .._raster import splat_gaussian, sum_over_batches
+from .._raster import (
+    check_int,
+    check_memory_limit,
+    splat_gaussian,
+    sum_over_batches,
+)
 from .._sharding import device_mesh
 
 METRICS = ("traversal", "error")
-DEFAULT_MEMORY_LIMIT = 1 << 30  # bytes: 1 GiB of photon buffer
 
 
 class CausticMapResult(eqx.Module):
@@ -92,12 +96,6 @@ def photon_bytes(channels: int, window: int, dtype) -> int:
     return channels * (size * (2 * w2 + 8) + 8 * w2)
 
 
-def _check_int(value, name: str, low: int) -> int:
-    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < low:
-        raise ValueError(f"`{name}` must be an int >= {low}, got {value!r}")
-    return int(value)
-
-
 def _check_common(scene, map_resolution, intersection, iterations, memory_limit):
     if not isinstance(scene, MeshScene):
         raise ValueError(
@@ -111,14 +109,11 @@ def _check_common(scene, map_resolution, intersection, iterations, memory_limit)
         )
     if intersection not in INTERSECTIONS:
         raise ValueError(f"`intersection` must be one of {INTERSECTIONS}, got {intersection!r}")
-    _check_int(iterations, "iterations", 0)
+    check_int(iterations, "iterations", 0)
     if map_resolution is None:
         map_resolution = 2 * max(scene.receiver.shape)
-    map_resolution = _check_int(map_resolution, "map_resolution", 2)
-    if memory_limit is None:
-        memory_limit = DEFAULT_MEMORY_LIMIT
-    memory_limit = _check_int(memory_limit, "memory_limit", 1)
-    return map_resolution, memory_limit
+    map_resolution = check_int(map_resolution, "map_resolution", 2)
+    return map_resolution, check_memory_limit(memory_limit)
 
 
 def _check_sigma(sigma, map_resolution: int, photons: int) -> float:
@@ -305,19 +300,24 @@ def caustics_mapping(
     map_resolution, memory_limit = _check_common(
         scene, map_resolution, intersection, iterations, memory_limit
     )
-    photons = _check_int(photons, "photons", 2)
+    photons = check_int(photons, "photons", 2)
     sigma = _check_sigma(sigma, map_resolution, photons)
     if gbuffer_resolution is None:
         gbuffer_resolution = min(photons, 1024)
-    gbuffer_resolution = _check_int(gbuffer_resolution, "gbuffer_resolution", 2)
+    gbuffer_resolution = check_int(gbuffer_resolution, "gbuffer_resolution", 2)
     window = 2 * math.ceil(3.0 * sigma) + 1
     dtype = scene.generator.vertices.dtype
     per_photon = photon_bytes(len(scene.iors), window, dtype)
-    if photons > 46340:  # photon indices are int32
-        raise ValueError(f"`photons` must be at most 46340 (int32 indices), got {photons}")
     mesh = None if devices is None else device_mesh(devices)
     n_devices = 1 if mesh is None else mesh.size
     batch = max(1, min(-(-photons * photons // n_devices), memory_limit // per_photon))
+    # photon indices are int32, up to the last batch of the last device's padded share
+    batches = math.ceil(photons * photons / batch)
+    if math.ceil(batches / n_devices) * n_devices * batch > 2**31:
+        raise ValueError(
+            f"`photons` {photons}: its batches of {batch} photons index past int32 (at most "
+            "about 46000 per axis; a smaller `memory_limit` leaves more room)"
+        )
     buffers = _view_and_buffers(scene, gbuffer_resolution)
     map_shape = (map_resolution, map_resolution)
     cmap, images, missed, splatted = _dense_map(
@@ -610,8 +610,8 @@ def adaptive_caustic_map(
     map_resolution, memory_limit = _check_common(
         scene, map_resolution, intersection, iterations, memory_limit
     )
-    photons = _check_int(photons, "photons", 2)
-    base = _check_int(base, "base", 2)
+    photons = check_int(photons, "photons", 2)
+    base = check_int(base, "base", 2)
     if base % 2:
         raise ValueError(f"`base` must be even (2 x 2 clusters), got {base}")
     ratio = photons // base
@@ -623,13 +623,13 @@ def adaptive_caustic_map(
         raise ValueError(f"`metric` must be one of {METRICS}, got {metric!r}")
     if discard not in ("footprint", "samples"):
         raise ValueError(f"`discard` must be 'footprint' or 'samples', got {discard!r}")
-    check_from = _check_int(check_from, "check_from", 1)
+    check_from = check_int(check_from, "check_from", 1)
     if capacity is not None:
-        capacity = _check_int(capacity, "capacity", (base // 2) ** 2)
+        capacity = check_int(capacity, "capacity", (base // 2) ** 2)
     sigma = _check_sigma(sigma, map_resolution, photons)
     if gbuffer_resolution is None:
         gbuffer_resolution = min(photons, 1024)
-    gbuffer_resolution = _check_int(gbuffer_resolution, "gbuffer_resolution", 2)
+    gbuffer_resolution = check_int(gbuffer_resolution, "gbuffer_resolution", 2)
     max_level = ratio.bit_length() - 1
     check_level = max(0, math.ceil(math.log2(max(check_from, base) / base)))
     window = 2 * math.ceil(3.0 * sigma) + 1

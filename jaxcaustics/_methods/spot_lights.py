@@ -20,11 +20,11 @@ from jaxtyping import Array, Float
 
 from .._ellipsoid import EllipsoidScene, trace_exit_rays
 from .._mesh import MeshScene
+from .._raster import check_memory_limit
 from .._scene import DirectionalLight
 from .._spot_light_fit import FitInfo, fit_spot_lights
 from .._spot_lights import Glossy, Lambertian, SpotLights, render_spot_lights
 
-DEFAULT_MEMORY_LIMIT = 1 << 30  # bytes: 1 GiB of traced rays
 _RAY_FLOATS = 64  # per traced ray: the exit ray, tracing and fit temporaries (estimate)
 
 
@@ -123,10 +123,7 @@ def spot_lights(
     _check_scene(scene)
     if lights is not None and fit_knobs:
         raise ValueError(f"`lights` were given: nothing to fit with {sorted(fit_knobs)}")
-    if memory_limit is None:
-        memory_limit = DEFAULT_MEMORY_LIMIT
-    if isinstance(memory_limit, bool) or not isinstance(memory_limit, int) or memory_limit < 1:
-        raise ValueError(f"`memory_limit` must be an int >= 1, got {memory_limit!r}")
+    memory_limit = check_memory_limit(memory_limit)
     dtype = jnp.result_type(scene.light.direction)
     per_ray = ray_bytes(dtype)
     if lights is None and isinstance(rays_per_axis, numbers.Integral):

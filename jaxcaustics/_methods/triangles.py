@@ -37,6 +37,8 @@ from jaxtyping import Array, Bool, Float
 from .._mesh import MeshScene
 from .._photons import Photons, lens_photons, mesh_photons
 from .._raster import (
+    check_int,
+    check_memory_limit,
     pixel_coordinates,
     rasterize_exact,
     rasterize_gouraud,
@@ -50,7 +52,6 @@ from .._sharding import device_mesh
 
 RECONSTRUCTIONS = ("exact", "gouraud")
 MAX_AUTO_WINDOW = 32
-DEFAULT_MEMORY_LIMIT = 1 << 30  # bytes: 1 GiB of photon and triangle buffers
 
 
 class TrianglesResult(eqx.Module):
@@ -522,12 +523,6 @@ def _banded_image(
     return _finish(images, total, extent, shape, reconstruction)
 
 
-def _check_int(value, name: str, low: int) -> int:
-    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < low:
-        raise ValueError(f"`{name}` must be an int >= {low}, got {value!r}")
-    return int(value)
-
-
 def caustic_triangles(
     scene: LensScene | MeshScene,
     *,
@@ -596,19 +591,17 @@ def caustic_triangles(
     if not isinstance(scene, (LensScene, MeshScene)):
         raise ValueError(f"`scene` must be a LensScene or a MeshScene, got {type(scene).__name__}")
     grid = _check_grid(photons)
-    _check_int(hit_iterations, "hit_iterations", 0)
+    check_int(hit_iterations, "hit_iterations", 0)
     if reconstruction not in RECONSTRUCTIONS:
         raise ValueError(
             f"`reconstruction` must be one of {RECONSTRUCTIONS}, got {reconstruction!r}"
         )
-    supersample = _check_int(supersample, "supersample", 1)
-    memory_limit = _check_int(
-        DEFAULT_MEMORY_LIMIT if memory_limit is None else memory_limit, "memory_limit", 1
-    )
+    supersample = check_int(supersample, "supersample", 1)
+    memory_limit = check_memory_limit(memory_limit)
     if visibility not in ("exact", "distance_map"):
         raise ValueError(f"`visibility` must be 'exact' or 'distance_map', got {visibility!r}")
     if window != "auto":
-        window = _check_int(window, "window", 1)
+        window = check_int(window, "window", 1)
     channels = len(scene.iors)
     dtype = (
         scene.surface.heights if isinstance(scene, LensScene) else scene.generator.vertices
@@ -617,7 +610,7 @@ def caustic_triangles(
     if batch_size is None:
         per_ray = band_bytes(0, 0, dtype, faces, 1) if faces else 1
         batch_size = max(1, min(4096, memory_limit // 4 // per_ray))
-    batch_size = _check_int(batch_size, "batch_size", 1)
+    batch_size = check_int(batch_size, "batch_size", 1)
     ray_batch = batch_size if faces else 0
     mesh = None if devices is None else device_mesh(devices)
     n_devices = 1 if mesh is None else mesh.size
@@ -677,7 +670,7 @@ def caustic_triangles(
     if triangle_batch is None:
         per_triangle = triangle_bytes(window, reconstruction, supersample, dtype)
         triangle_batch = max(1, memory_limit // 4 // per_triangle)
-    triangle_batch = _check_int(triangle_batch, "triangle_batch", 1)
+    triangle_batch = check_int(triangle_batch, "triangle_batch", 1)
     band_triangles = 2 * (rows + 2 * halo - 1) * (grid[1] - 1)
     triangle_batch = min(triangle_batch, band_triangles)
     if not banded:
