@@ -87,9 +87,17 @@ def add_design(subparsers) -> None:
     )
     design.add_argument("--steps", type=int, default=40, help="solver steps per level (40)")
     design.add_argument(
+        "--start",
+        default="transport",
+        choices=("transport", "poisson"),
+        help="transport: optimal transport then the landing fit (default; black stays "
+        "black); poisson: the weak-lens start and the irradiance solve coarse to fine",
+    )
+    design.add_argument(
         "--solver",
         default="levenberg_marquardt",
         choices=("levenberg_marquardt", "gauss_newton", "lbfgs"),
+        help="the Poisson start's solver",
     )
     design.add_argument(
         "--max-relief",
@@ -150,12 +158,16 @@ def run_design(args: argparse.Namespace) -> int:
     import jax.numpy as jnp
 
     from ._export import export_lens
-    from ._inverse.design import _resample, default_levels, design_lens
+    from ._inverse.design import _resample, default_levels, design_lens, transport_shape
     from ._io import write_png
 
     target = _load_target(args.target, args.size)
-    levels = list(default_levels(target.shape)) if args.levels is None else _levels(args.levels)
     height = args.height or args.width * target.shape[0] / target.shape[1]
+    if args.start == "transport":  # one level: the heights grid of the landing fit
+        given = None if args.levels is None else _levels(args.levels)[-1]
+        levels = [given or max(transport_shape(target.shape, args.width, height))]
+    else:
+        levels = list(default_levels(target.shape)) if args.levels is None else _levels(args.levels)
     spec = dict(
         width=args.width, height=height, thickness=args.thickness, throw=args.throw, ior=args.ior
     )
@@ -167,7 +179,7 @@ def run_design(args: argparse.Namespace) -> int:
 
     def level_round(k: int):
         def step_done(info, report):
-            losses.append(float(info["loss"]))
+            losses.append(float(info["loss"]) / info.get("residuals", 1))
             rows, cols = info["shape"]
             report(f"{rows}x{cols} step {info['step']}/{args.steps} loss {info['loss']:.4g}")
 
@@ -178,6 +190,7 @@ def run_design(args: argparse.Namespace) -> int:
                 levels=(levels[k],),
                 max_steps=args.steps,
                 solver=args.solver,
+                start=args.start,
                 max_relief=args.max_relief if k == len(levels) - 1 else None,
                 initial=initial,
                 throw_errors=False,
@@ -211,8 +224,13 @@ def run_design(args: argparse.Namespace) -> int:
     summary = {
         "levels": levels,
         "steps_per_level": args.steps,
+        "start": args.start,
         "solver": args.solver,
         "seconds": seconds,
+        "predicted_error": design.predicted_error,
+        "dark_flux": design.dark_flux,
+        "converged": design.converged,
+        "warnings": design.warnings,
         "final_loss": float(design.loss_history[-1]) if design.loss_history else None,
         "relief_mm": 1000 * design.relief,
         "files": {k: str(v) for k, v in paths.items()},
@@ -230,7 +248,13 @@ def run_design(args: argparse.Namespace) -> int:
             "sun": report.sun,
         }
     (out / "summary.json").write_text(json.dumps(summary, indent=2))
-    print(f"designed in {seconds:.1f} s; relief {1000 * design.relief:.2f} mm")
+    print(
+        f"designed in {seconds:.1f} s; relief {1000 * design.relief:.2f} mm; predicted error "
+        f"{design.predicted_error:.3f} (relative L2), {100 * design.dark_flux:.1f}% of the "
+        "flux on dark pixels"
+    )
+    for note in design.warnings:
+        print(f"warning: {note}")
     print((out / "lens_report.txt").read_text() if (out / "lens_report.txt").exists() else "")
     print(f"wrote {out}/ (lens.stl, lens.obj, height maps, predicted.png, loss.png, reports)")
     return 0
@@ -246,7 +270,7 @@ def _loss_plot(losses: list[float], path: Path) -> None:
     if losses:
         ax.semilogy(np.arange(1, len(losses) + 1), losses)
     ax.set_xlabel("solver step (all levels)")
-    ax.set_ylabel("loss")
+    ax.set_ylabel("loss per residual")
     ax.set_title("lens design")
     fig.tight_layout()
     fig.savefig(path, dpi=80)

@@ -94,12 +94,12 @@ def legendre(f: jax.Array, h, ghost: int = 0) -> jax.Array:
     return out.T
 
 
-def _bilinear_cells(image: jax.Array, x: jax.Array, y: jax.Array, h) -> jax.Array:
-    """Bilinear interpolation of cell-centred `image` at grid coordinates ``(x, y)``,
-    edge values extended outwards."""
+def bilinear(image: jax.Array, px: jax.Array, py: jax.Array) -> jax.Array:
+    """Bilinear interpolation of `image` at pixel coordinates (the centre of pixel
+    ``(i, j)`` at ``(j + 0.5, i + 0.5)``), edge values extended outwards."""
     rows, cols = image.shape
-    u = jnp.clip(x / h - 0.5, 0.0, cols - 1.0)
-    v = jnp.clip(y / h - 0.5, 0.0, rows - 1.0)
+    u = jnp.clip(px - 0.5, 0.0, cols - 1.0)
+    v = jnp.clip(py - 0.5, 0.0, rows - 1.0)
     j0 = jnp.clip(jnp.floor(u), 0, max(cols - 2, 0)).astype(jnp.int32)
     i0 = jnp.clip(jnp.floor(v), 0, max(rows - 2, 0)).astype(jnp.int32)
     j1, i1 = jnp.minimum(j0 + 1, cols - 1), jnp.minimum(i0 + 1, rows - 1)
@@ -129,16 +129,18 @@ def pushforward(potential: jax.Array, density: jax.Array, h, samples: int = 3):
         for a in t:
             sx = (1 - b) * ((1 - a) * xa + a * xb) + b * ((1 - a) * xd + a * xc)
             sy = (1 - b) * ((1 - a) * ya + a * yb) + b * ((1 - a) * yd + a * yc)
-            total = total + _bilinear_cells(density, sx, sy, h)
+            total = total + bilinear(density, sx / h, sy / h)
     return jnp.maximum(area, 0.0) / (h * h) * total / samples**2
 
 
-def _inverse_laplacian(rhs: jax.Array, h) -> jax.Array:
-    """``(-Laplacian)^-1 rhs`` with zero-flux boundaries (DCT-II), mean removed."""
+@jax.jit
+def neumann_poisson(rhs: jax.Array, dx, dy) -> jax.Array:
+    """Solve ``Laplacian(u) = rhs`` on a cell-centred grid with zero-flux (Neumann)
+    boundaries by a DCT-II; the mean of ``rhs`` is ignored and ``u`` has zero mean."""
     rows, cols = rhs.shape
     coef = jax.scipy.fft.dctn(rhs, type=2, norm="ortho")
-    ky = (2.0 - 2.0 * jnp.cos(jnp.pi * jnp.arange(rows) / rows)) / h**2
-    kx = (2.0 - 2.0 * jnp.cos(jnp.pi * jnp.arange(cols) / cols)) / h**2
+    ky = (2.0 * jnp.cos(jnp.pi * jnp.arange(rows) / rows) - 2.0) / dy**2
+    kx = (2.0 * jnp.cos(jnp.pi * jnp.arange(cols) / cols) - 2.0) / dx**2
     lam = (ky[:, None] + kx[None, :]).at[0, 0].set(1.0)
     return jax.scipy.fft.idctn((coef / lam).at[0, 0].set(0.0), type=2, norm="ortho")
 
@@ -166,7 +168,7 @@ def _back_and_forth(mu, nu, iterations: int, tol, sigma0, stall):
         Returns the other side's potential (with a ghost ring), `p` again (convex),
         the step's new dual value and step size, and the push-forward of `other`
         onto the other side."""
-        work = _inverse_laplacian(rho - dens, h)
+        work = -neumann_poisson(rho - dens, h, h)  # (-Laplacian)^-1 (rho - dens)
         grad_sq = jnp.sum(work * (rho - dens)) * h * h
         q = legendre(p + sigma * work, h)
         p = legendre(q, h)

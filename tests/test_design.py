@@ -303,7 +303,10 @@ def test_landing_fit_gradients_are_finite_in_float32(silhouette_design):
         _, problem = design_module._level_problem(setup, 0, None)
         goal_x, goal_y, _ = design_module._transport_goal(setup, shape, problem)
         pixel = jnp.asarray([0.1 / 32, 0.1 / 32], jnp.float32)
-        fit = design_module._LandingFit(problem, goal_x, goal_y, jnp.ones(shape), pixel)
+        sampling = design_module._sampling(shape, setup.aperture, problem.grid)
+        fit = design_module._LandingFit(
+            problem, goal_x, goal_y, jnp.ones(shape), pixel, sampling
+        )
 
         def loss(h):
             rx, ry = fit.residual(h)

@@ -61,6 +61,8 @@ from .._optics import refract_components
 from .._photons import _grid
 from .._scene import DirectionalLight, HeightField, LensScene, PlaneReceiver, PointLight
 from .._surface import _catmull_rom, ray_surface_hit
+from .._transport import bilinear as _bilinear
+from .._transport import neumann_poisson as _neumann_poisson
 from .recover import _laplacian as _five_point
 from .recover import check_irradiance, resample_heights
 
@@ -165,20 +167,6 @@ def _level_shape(n: int, width: float, height: float) -> tuple[int, int]:
 # --------------------------------------------------------------------------- pieces
 
 
-@jax.jit
-def _neumann_poisson(rhs: jax.Array, dx: float, dy: float) -> jax.Array:
-    """Solve ``Laplacian(u) = rhs`` on a cell-centred grid with zero-flux (Neumann)
-    boundaries by a DCT-II; the mean of ``rhs`` is ignored and ``u`` has zero mean."""
-    rows, cols = rhs.shape
-    coef = jax.scipy.fft.dctn(rhs, type=2, norm="ortho")
-    ky = (2.0 * jnp.cos(jnp.pi * jnp.arange(rows) / rows) - 2.0) / dy**2
-    kx = (2.0 * jnp.cos(jnp.pi * jnp.arange(cols) / cols) - 2.0) / dx**2
-    lam = ky[:, None] + kx[None, :]
-    lam = lam.at[0, 0].set(1.0)
-    coef = (coef / lam).at[0, 0].set(0.0)
-    return jax.scipy.fft.idctn(coef, type=2, norm="ortho")
-
-
 def _area_average(image: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
     """Resample `image` to `shape` by exact box (area) averaging, any ratio."""
 
@@ -191,22 +179,6 @@ def _area_average(image: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
         return w / w.sum(axis=1, keepdims=True)
 
     return matrix(image.shape[0], shape[0]) @ image @ matrix(image.shape[1], shape[1]).T
-
-
-def _bilinear(image: jax.Array, px: jax.Array, py: jax.Array) -> jax.Array:
-    """Bilinear interpolation of `image` at pixel coordinates (centre of pixel ``(i, j)``
-    at ``(j + 0.5, i + 0.5)``), edge values extended outwards."""
-    rows, cols = image.shape
-    u = jnp.clip(px - 0.5, 0.0, cols - 1.0)
-    v = jnp.clip(py - 0.5, 0.0, rows - 1.0)
-    j0 = jnp.clip(jnp.floor(u), 0, cols - 2).astype(jnp.int32)
-    i0 = jnp.clip(jnp.floor(v), 0, rows - 2).astype(jnp.int32)
-    fu, fv = u - j0, v - i0
-    a = image[i0, j0]
-    b = image[i0, j0 + 1]
-    c = image[i0 + 1, j0]
-    d = image[i0 + 1, j0 + 1]
-    return (1 - fv) * ((1 - fu) * a + fu * b) + fv * ((1 - fu) * c + fu * d)
 
 
 def _safe_log_area(area: jax.Array, floor: jax.Array) -> jax.Array:
@@ -262,6 +234,14 @@ class _Problem(eqx.Module):
             hit_x, hit_y, hit_z, hx, hy = ray_surface_hit(
                 surface, top, px, py, d, self.hit_iterations
             )
+        x, y = self.exit(hit_x, hit_y, hit_z, hx, hy, d)
+        return x, y, density, cell_area
+
+    def exit(self, hit_x, hit_y, hit_z, hx, hy, d):
+        """Where a ray of direction `d` that hits the top surface at ``(hit_x, hit_y,
+        hit_z)`` with slopes ``(hx, hy)`` lands on the screen: Snell at the top, the
+        glass down to the bottom face, Snell there, the throw."""
+        scene = self.scene
         inv = jax.lax.rsqrt(hx * hx + hy * hy + 1.0)
         normal = (-hx * inv, -hy * inv, inv)
         inside, _, _ = refract_components(d, normal, 1.0 / scene.ior)
@@ -270,7 +250,33 @@ class _Problem(eqx.Module):
         up = (jnp.zeros_like(hx), jnp.zeros_like(hx), jnp.ones_like(hx))
         out, _, _ = refract_components(inside, up, scene.ior)
         t = scene.throw / -jnp.minimum(out[2], -1e-12)
-        return bx + t * out[0], by + t * out[1], density, cell_area
+        return bx + t * out[0], by + t * out[1]
+
+    def vertex_rays(self, h: jax.Array, sampling):
+        """The rays that hit the top surface exactly above the photon grid's vertices:
+        where they land on the screen, and where they crossed the top's rest plane
+        (``x, y, rest_x, rest_y``; the two coincide for vertical light). Exact for any
+        light, with no ray-surface iteration: the surface and its slopes are read at
+        the vertices through the separable bicubic weights `sampling`."""
+        h = h - jax.lax.stop_gradient(jnp.max(h))
+        scene = self.scene
+        x0, x1, y0, y1 = scene.surface.extent
+        px, py, _ = _grid(x0, x1, y0, y1, self.grid, h.dtype)
+        wy, dwy, wx, dwx = sampling
+        height = wy @ h @ wx.T
+        hx, hy = wy @ h @ dwx.T, dwy @ h @ wx.T
+        top = scene.top
+        if isinstance(scene.light, DirectionalLight):
+            d = tuple(c.astype(h.dtype) * jnp.ones_like(px) for c in scene.light.unit_direction)
+        else:
+            lp = scene.light.position.astype(h.dtype)
+            offset = (px - lp[0], py - lp[1], top + height - lp[2])
+            inv = jax.lax.rsqrt(sum(c * c for c in offset))
+            d = tuple(c * inv for c in offset)
+        back = -height / d[2]  # along the ray from the hit up (or down) to the rest plane
+        rest_x, rest_y = px + back * d[0], py + back * d[1]
+        x, y = self.exit(px, py, top + height, hx, hy, d)
+        return x, y, rest_x, rest_y
 
     def transport_residual(self, u: jax.Array, args=None):
         x, y, density, cell_area = self.landing(self.heights(u))
@@ -408,14 +414,23 @@ class _LandingFit(eqx.Module):
     DCT basis (`_fit_symbol`). The auxiliary output is the RMS misplacement (pixels)."""
 
     problem: _Problem
-    goal_x: jax.Array  # (P0, P1) where the vertices must land, metres
+    goal_x: jax.Array  # (P0, P1) where the rays through the vertices must land, metres
     goal_y: jax.Array
     symbol: jax.Array  # (rows, cols)
     pixel: jax.Array  # (2,) screen pixel size, metres
+    sampling: tuple  # bicubic weights at the vertices (`_sampling`)
 
     def residual(self, h):
-        x, y, _, _ = self.problem.landing(h)
-        return (x - self.goal_x) / self.pixel[0], (y - self.goal_y) / self.pixel[1]
+        """Misplacement (screen pixels) of the rays hitting the surface above the
+        vertices: each should land where the transport sends the rest-plane point it
+        crossed (the goal read there bilinearly; the vertex itself for vertical light)."""
+        x, y, rest_x, rest_y = self.problem.vertex_rays(h, self.sampling)
+        rows, cols = self.goal_x.shape
+        x0, x1, y0, y1 = self.problem.scene.surface.extent
+        u = (rest_x - x0) / (x1 - x0) * (cols - 1) + 0.5  # pixel-centre convention
+        v = (rest_y - y0) / (y1 - y0) * (rows - 1) + 0.5
+        gx, gy = _bilinear(self.goal_x, u, v), _bilinear(self.goal_y, u, v)
+        return (x - gx) / self.pixel[0], (y - gy) / self.pixel[1]
 
     def __call__(self, h, args=None):
         r, vjp = jax.vjp(self.residual, h)
@@ -475,6 +490,30 @@ def _run_fit(fit, solver, h0, max_steps: int, history: list, callback, info, pat
     return best_h, steps, result, compile_s or 0.0, time.perf_counter() - t0, stalled, best
 
 
+def _landing_gain(problem: _Problem, sampling, shape, dx, dy, pixel) -> tuple[float, float]:
+    """How far the vertices move on the screen (pixels) per unit slope of the heights,
+    along x and y, measured on the flat lens (a JVP along the smoothest cosine mode):
+    the weak-lens ``D / pixel``, for any light (a point light's diverging rays, oblique
+    incidence) without a formula per case."""
+    rows, cols = shape
+    y = (np.arange(rows) + 0.5) / rows
+    x = (np.arange(cols) + 0.5) / cols
+    gains = []
+    for axis in (0, 1):
+        mode = np.cos(np.pi * x)[None, :] + 0 * y[:, None] if axis == 0 else (
+            np.cos(np.pi * y)[:, None] + 0 * x[None, :]
+        )
+        v = jnp.asarray(mode * 1e-3 * (dx if axis == 0 else dy), pixel.dtype)
+
+        def landing(h, axis=axis):
+            return problem.vertex_rays(h, sampling)[axis]
+
+        _, moved = jax.jvp(landing, (jnp.zeros_like(v),), (v,))
+        slope = _gradient_at_vertices(v, dx, dy)[axis]
+        gains.append(float(jnp.sum(moved * slope) / jnp.sum(slope * slope)) / float(pixel[axis]))
+    return gains[0], gains[1]
+
+
 def _transport_goal(setup: _Setup, shape, problem: _Problem):
     """The landing points of the photon vertices: the optimal transport from the
     aperture's flux to the target, on the heights grid. Returns ``(goal_x, goal_y,
@@ -519,15 +558,19 @@ def _design_by_transport(setup: _Setup, history: list, callback):
         [(setup.screen[1] - setup.screen[0]) / tcols, (setup.screen[3] - setup.screen[2]) / trows]
     )
     dtype = jnp.result_type(float)
+    pixel_j = jnp.asarray(pixel, dtype)
+    sampling = _sampling(shape, setup.aperture, problem.grid)
+    gain = _landing_gain(problem, sampling, shape, dx, dy, pixel_j)
     fit = _LandingFit(
         problem,
         goal_x,
         goal_y,
-        jnp.asarray(_fit_symbol(shape, dx, dy, setup.weak / pixel[0], setup.weak / pixel[1]), dtype),
-        jnp.asarray(pixel, dtype),
+        jnp.asarray(_fit_symbol(shape, dx, dy, *gain), dtype),
+        pixel_j,
+        sampling,
     )
     # converged: a step moves no vertex by more than 1/100 of a pixel (weak-lens estimate)
-    atol = 0.01 * float(min(pixel[0] * dx, pixel[1] * dy)) / setup.weak
+    atol = 0.01 * min(dx / gain[0], dy / gain[1])
     solver = optx.FixedPointIteration(rtol=0.0, atol=atol)
     if setup.initial is not None:
         h0 = jnp.asarray(_resample(np.asarray(setup.initial, float), shape), dtype)
@@ -862,7 +905,9 @@ def design_lens(
       solution, which folds where the target is dark; 0.5 by default).
     - `predict_photons`: photon grid of the predicted caustic (default 4 per pixel side).
     - `throw_errors`: raise if a level's solver fails (otherwise the result says so).
-    - `callback`: called after every solver step with a dict (level, shape, step, loss).
+    - `callback`: called after every solver step with a dict (level, shape, step, loss,
+      and the number of residuals the loss sums: ``loss / residuals`` is comparable
+      between levels; the transport start's loss is already a mean).
     - `initial`: heights (metres, any grid shape) to start the first level from instead
       of the weak-lens Poisson solution (how a run is continued level by level), or
       the landing fit from instead of flat.
@@ -912,7 +957,7 @@ def design_lens(
     h = None
     for k, shape in enumerate(setup.shapes):
         u, problem = _level_problem(setup, k, h)
-        info = {"level": k, "shape": shape}
+        info = {"level": k, "shape": shape, "residuals": _residual_count(problem)}
         u, steps, result, compile_s, seconds = _run_level(
             objective, sol, u, problem, setup.max_steps, history, callback, info
         )
