@@ -31,8 +31,12 @@ preconditioned Gauss-Newton step: the exact gradient ``J^T r`` (a VJP), divided 
 DCT basis by the weak-lens normal operator ``(D / pixel)^2 G^T G`` (``G``: the gradient
 of the heights at the photon vertices). In the weak-lens limit the first step is the
 Brenier potential itself (heights = (potential - |x|^2 / 2) / D); the next ones correct
-for the real optics. The irradiance residual, started from this design, raised the
-error on a silhouette (relative L2 0.18 to 0.26, measured), so it is not run after it.
+for the real optics. Where the target has dark regions the map jumps across them and
+the fitted surface (smooth on its grid) spreads a little light over the gaps; there a
+few L-BFGS steps on the image misfit (caustic triangles, plus a penalty on the flux on
+dark pixels) finish the design (`refine_steps`). The irradiance residual of the Poisson
+start, run after the fit instead, raised the error on a silhouette (relative L2 0.18 to
+0.26, measured), since its logarithm needs light everywhere.
 
 Weak-lens relation (collimated light along ``-z``): a photon through the aperture point
 ``p`` lands near ``p + D grad H(p)`` with ``D = (n - 1) (throw + thickness / n)``; the
@@ -543,6 +547,103 @@ def _resample_corners(values: np.ndarray, shape) -> np.ndarray:
     return np.array([np.interp(cols, np.arange(values.shape[1]), r) for r in first])
 
 
+class _ImageRefine(eqx.Module):
+    """The image-space finish of the transport start: ``0.5 |E / mean(E) - T|^2 / |T|^2
+    + dark_weight * (flux on dark pixels) / (all flux)``, ``E`` the caustic-triangles
+    image of the heights ``h = C^-1/2 u`` (`C` the landing fit's DCT symbol: ``u`` is in
+    pixels of displacement, so that L-BFGS sees a well-scaled problem)."""
+
+    scene: LensScene
+    goal: jax.Array  # (rows, cols) target at unit mean
+    dark: jax.Array  # (rows, cols) bool: the target below 5% of its mean
+    root_symbol: jax.Array  # (hrows, hcols)
+    photons: int = eqx.field(static=True)
+    window: int = eqx.field(static=True)
+    dark_weight: float = eqx.field(static=True)
+
+    def heights(self, u):
+        coef = jax.scipy.fft.dctn(u, type=2, norm="ortho") / self.root_symbol
+        return jax.scipy.fft.idctn(coef, type=2, norm="ortho")
+
+    def variable(self, h):
+        coef = jax.scipy.fft.dctn(h, type=2, norm="ortho") * self.root_symbol
+        return jax.scipy.fft.idctn(coef, type=2, norm="ortho")
+
+    def image(self, u):
+        from .._methods.triangles import caustic_triangles
+
+        h = self.heights(u)
+        scene = eqx.tree_at(lambda sc: sc.surface.heights, self.scene, h - jnp.max(h))
+        e = caustic_triangles(scene, photons=self.photons, window=self.window).image
+        return e / jnp.mean(e)
+
+    def loss(self, u):
+        e = self.image(u)
+        misfit = 0.5 * jnp.sum((e - self.goal) ** 2) / jnp.sum(self.goal**2)
+        return misfit + self.dark_weight * jnp.sum(jnp.where(self.dark, e, 0.0)) / jnp.sum(e)
+
+
+def _image_loss(u, refine: _ImageRefine):
+    return refine.loss(u)
+
+
+def _refine_in_image(setup: _Setup, h: np.ndarray, symbol, history, callback):
+    """L-BFGS (Optimistix) on the image misfit from the landing fit's heights, when the
+    target has dark regions (below 5% of its mean on more than 1% of the screen: there
+    the map jumps and the fit's surface spreads light across the gaps); `refine_steps`
+    steps, kept only if the misfit fell. Returns ``(heights, report or None)``."""
+    if setup.refine_steps == 0:
+        return h, None
+    dtype = jnp.result_type(float)
+    goal = setup.goal / setup.goal.mean()
+    n = setup.refine_photons or 3 * max(setup.target_shape) + 1
+    refine = _ImageRefine(
+        LensScene(
+            HeightField(np.asarray(h), setup.aperture, "clamp"),
+            setup.light,
+            setup.receiver,
+            setup.thickness,
+            setup.throw,
+            ior=setup.ior,
+        ),
+        jnp.asarray(goal, dtype),
+        jnp.asarray(goal < 0.05),
+        jnp.asarray(np.sqrt(symbol), dtype),
+        n,
+        4,
+        0.3,
+    )
+    dark_pixels = float(np.mean(goal < 0.05))
+    if dark_pixels <= 0.01:  # no dark regions: the map has no jumps to clean up
+        return h, None
+    u0 = refine.variable(jnp.asarray(h, dtype))
+    t0 = time.perf_counter()
+    solver = optx.LBFGS(rtol=1e-6, atol=1e-9)
+    before = len(history)
+    info = {"level": 1, "shape": tuple(h.shape), "residuals": 1}
+    u, steps, result, compile_s, seconds = _run_level(
+        _image_loss, solver, u0, refine, setup.refine_steps, history, callback, info
+    )
+    losses = history[before:]
+    kept = bool(losses) and losses[-1] < losses[0]
+    h_new = np.asarray(refine.heights(u)) if kept else h
+    h_new = h_new - h_new.max()
+    report = {
+        "stage": "image refinement",
+        "shape": tuple(h.shape),
+        "steps": steps,
+        "loss": losses[-1] if losses else float("nan"),
+        "loss_per_pixel": losses[-1] if losses else float("nan"),
+        "first_loss": losses[0] if losses else float("nan"),
+        "kept": kept,
+        # a step budget (the fit's misfit polished), not a convergence target
+        "result": "budget" if result == optx.RESULTS.max_steps_reached else result,
+        "seconds": time.perf_counter() - t0,
+        "first_step_seconds": compile_s,
+    }
+    return h_new, report
+
+
 def _design_by_transport(setup: _Setup, history: list, callback):
     """The transport start and the landing fit (one level on the heights grid).
     Returns ``(heights, level_reports, result, converged)``."""
@@ -584,6 +685,10 @@ def _design_by_transport(setup: _Setup, history: list, callback):
     if not np.all(np.isfinite(h)):
         raise RuntimeError(f"the landing fit ({shape}) gave heights that are not finite")
     h = h - h.max()
+    # the refinement's variable: heights scaled by the fit's symbol without its gain
+    # (u ~ slope x samples; measured: with the gain L-BFGS barely moved in 12 steps)
+    symbol = _fit_symbol(shape, dx, dy, 1.0, 1.0)
+    h, refinement = _refine_in_image(setup, h, symbol, history, callback)
     reports = [
         {
             "stage": "transport",
@@ -607,6 +712,8 @@ def _design_by_transport(setup: _Setup, history: list, callback):
             "first_step_seconds": compile_s,
         },
     ]
+    if refinement is not None:
+        reports.append(refinement)
     converged = bool(result == optx.RESULTS.successful) or stalled
     return h, reports, result, converged
 
@@ -849,6 +956,8 @@ def design_lens(
     start: Literal["transport", "poisson"] = "transport",
     transport_iterations: int = 100,
     warn_error: float = 0.15,
+    refine_steps: int = 8,
+    refine_photons: int | None = None,
 ) -> LensDesign:
     """Design the height-field top surface of a caustic lens whose caustic on a screen
     matches `target`.
@@ -887,6 +996,14 @@ def design_lens(
       ``"lbfgs"`` (Optimistix's limited-memory BFGS on ``0.5 * sum(residual^2)``);
       the Poisson start's.
     - `transport_iterations`: back-and-forth iterations of the transport at most.
+    - `refine_steps`: the transport start's finish, for targets with dark regions
+      (below 5% of the mean on more than 1% of the screen: there the map jumps and the
+      fitted surface spreads light across the gaps): this many L-BFGS steps on the
+      image misfit plus the flux on dark pixels, with the caustic-triangles forward
+      model (`refine_photons` photons per side, default 3 per pixel, window 4); kept
+      only if the misfit fell. 0: no finish. Measured on the white-lettering target
+      (128 x 128): relative L2 0.085 to 0.064 and 3.2% to 2.8% of the flux on dark
+      pixels in 8 steps (30 s).
     - `warn_error`: warn when the predicted caustic's relative L2 error against the
       target exceeds this.
     - `max_relief`: the deepest relief the blank allows (metres), e.g. Mitsuba's
@@ -945,6 +1062,8 @@ def design_lens(
         start=start,
         transport_iterations=transport_iterations,
         warn_error=warn_error,
+        refine_steps=refine_steps,
+        refine_photons=refine_photons,
     )
     history: list[float] = []
     if setup.start == "transport":
@@ -1014,6 +1133,8 @@ class _Setup:
     start: str = "poisson"
     transport_iterations: int = 100
     warn_error: float = 0.15
+    refine_steps: int = 8
+    refine_photons: int | None = None
 
 
 def _residual_count(problem: _Problem) -> int:
@@ -1051,6 +1172,8 @@ def _prepare(
     start="poisson",
     transport_iterations=100,
     warn_error=0.15,
+    refine_steps=8,
+    refine_photons=None,
 ) -> _Setup:
     """Check a specification (`ValueError` naming the argument) and compute what the
     levels need: the screen, the scaled target, the weak-lens constant, the level shapes."""
@@ -1106,6 +1229,13 @@ def _prepare(
         raise ValueError(f"`transport_iterations` must be an int >= 1, got {transport_iterations!r}")
     if not (isinstance(warn_error, (int, float)) and warn_error > 0):
         raise ValueError(f"`warn_error` must be a positive number, got {warn_error!r}")
+    if isinstance(refine_steps, bool) or not isinstance(refine_steps, int) or refine_steps < 0:
+        raise ValueError(f"`refine_steps` must be an int >= 0, got {refine_steps!r}")
+    if refine_photons is not None and (
+        isinstance(refine_photons, bool) or not isinstance(refine_photons, int)
+        or refine_photons < 2
+    ):
+        raise ValueError(f"`refine_photons` must be an int >= 2, got {refine_photons!r}")
     if start == "transport" and levels_given:
         shapes = [_level_shape(levels[-1], width, height)]
     elif start == "transport":
@@ -1210,6 +1340,8 @@ def _prepare(
         start=start,
         transport_iterations=transport_iterations,
         warn_error=float(warn_error),
+        refine_steps=refine_steps,
+        refine_photons=refine_photons,
     )
 
 
