@@ -12,7 +12,8 @@ with a height-field top; `MeshScene`: a glass or mirror `Mesh` with optional occ
 `PointLight` and a `PlaneReceiver`), then `render` it.
 The NumPy reference lives in `jaxcaustics.reference` and imports no JAX.
 
-Inverse problems: `design_lens` (a caustic lens for a target picture; `export_lens`
+Inverse problems: `design_lens` (a caustic lens for a target picture, started from the
+optimal transport `transport_map`; `export_lens`
 writes it for the workshop, `manufacturability` reports whether it can be milled,
 `verify_lens` renders the exported solid with the reference) and `recover_surface` (a
 water surface from its caustic).
@@ -103,6 +104,12 @@ from ._inverse.verify import (
 )
 from ._io import (
     read_exr as read_exr,
+)
+from ._transport import (
+    TransportMap as TransportMap,
+)
+from ._transport import (
+    transport_map as transport_map,
 )
 from ._io import (
     read_image as read_image,

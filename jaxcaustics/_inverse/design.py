@@ -589,7 +589,7 @@ def _image_loss(u, refine: _ImageRefine):
 
 def _refine_in_image(setup: _Setup, h: np.ndarray, symbol, history, callback):
     """L-BFGS (Optimistix) on the image misfit from the landing fit's heights, when the
-    target has dark regions (below 5% of its mean on more than 1% of the screen: there
+    target has dark regions (below 5% of its mean on more than 10% of the screen: there
     the map jumps and the fit's surface spreads light across the gaps); `refine_steps`
     steps, kept only if the misfit fell. Returns ``(heights, report or None)``."""
     if setup.refine_steps == 0:
@@ -614,7 +614,7 @@ def _refine_in_image(setup: _Setup, h: np.ndarray, symbol, history, callback):
         0.3,
     )
     dark_pixels = float(np.mean(goal < 0.05))
-    if dark_pixels <= 0.01:  # no dark regions: the map has no jumps to clean up
+    if dark_pixels <= 0.1:  # no large dark regions: few jumps of the map to clean up
         return h, None
     u0 = refine.variable(jnp.asarray(h, dtype))
     t0 = time.perf_counter()
@@ -997,7 +997,7 @@ def design_lens(
       the Poisson start's.
     - `transport_iterations`: back-and-forth iterations of the transport at most.
     - `refine_steps`: the transport start's finish, for targets with dark regions
-      (below 5% of the mean on more than 1% of the screen: there the map jumps and the
+      (below 5% of the mean on more than 10% of the screen: there the map jumps and the
       fitted surface spreads light across the gaps): this many L-BFGS steps on the
       image misfit plus the flux on dark pixels, with the caustic-triangles forward
       model (`refine_photons` photons per side, default 3 per pixel, window 4); kept
