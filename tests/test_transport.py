@@ -138,7 +138,7 @@ def test_steps_are_finite_and_differentiable_in_float32():
         return jnp.sum((rho - nu) ** 2)
 
     bump = jnp.asarray(gaussian(0.5, 0.5), jnp.float32)
-    value, grad = jax.value_and_grad(misfit)(bump)
+    value, grad = jax.jit(jax.value_and_grad(misfit))(bump)
     assert value.dtype == jnp.float32
     assert np.isfinite(float(value))
     assert np.all(np.isfinite(np.asarray(grad)))
