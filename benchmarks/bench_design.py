@@ -1,4 +1,6 @@
-"""Caustic lens design (`design_lens`) in the setting of Mitsuba 3's caustics tutorial.
+"""Caustic lens design (`design_lens`, ``start="poisson"``: the weak-lens start and the
+coarse-to-fine irradiance solve) in the setting of Mitsuba 3's caustics tutorial; the
+default transport start is measured by `bench_design_contrast.py`.
 
 A lens 2 x 2 units (metres here), index 1.5, a 0.5 blank, the screen 7 units past it,
 collimated light straight down; target: scikit-image's ``camera`` area-averaged to
@@ -101,6 +103,7 @@ def one(name: str, quick: bool) -> dict:
         d = design_lens(
             t,
             **SETTING,
+            start="poisson",  # this benchmark measures the Poisson start's solvers
             **kwargs,
             throw_errors=False,
             callback=lambda info: stamps.append((info["level"], time.perf_counter() - start)),

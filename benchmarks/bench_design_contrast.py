@@ -145,15 +145,16 @@ def report(rows: dict) -> str:
         "Mitsuba 3 tutorial setting (lens 2 x 2 m, index 1.5, blank 0.5 m, throw 7 m), "
         "128 x 128 targets, `design_lens` defaults but `start` (and the light), float32, "
         "2 CPU cores, one fresh process per row (compilation counted in `total s`; "
-        "`compile s`: the first call of each compiled solve, compilation included, an "
-        "upper bound of the compilation). Judged by the NumPy reference "
+        "`transport s`: the transport, its compilation included; `first steps s`: the "
+        "first call of each compiled solve (the landing fit and the image refinement, or "
+        "the Poisson levels): their compilation plus one step). Judged by the NumPy reference "
         f"(`trace_lens`, {PHOTONS}^2 photons) on the exported height map read back from "
         "its EXR: relative L2 and 1 - SSIM at unit mean, and the flux fraction on pixels "
         "where the target is below 5% of its mean. `predicted`: the design's own "
         "forward model (caustic triangles). Regenerate: "
         "`python benchmarks/bench_design_contrast.py`.",
         "",
-        "| target | start | light | total s | transport s | compile s | steps | "
+        "| target | start | light | total s | transport s | first steps s | steps | "
         "predicted L2 | reference L2 | 1 - SSIM | dark flux | warned |",
         "|---|---|---|--:|--:|--:|--:|--:|--:|--:|--:|---|",
     ]

@@ -167,7 +167,8 @@ def _tilted_cube(dtype):
     return jc.Mesh(np.asarray(box.vertices, dtype), box.faces)
 
 
-@pytest.mark.parametrize("dtype", [np.float64, np.float32])
+# the float64 twin runs on request (slow), for the default run's 10-minute budget; float32 is the default
+@pytest.mark.parametrize("dtype", [pytest.param(np.float64, marks=pytest.mark.slow), np.float32])
 @pytest.mark.parametrize("case", ["grazing", "tir", "misses"])
 def test_hard_cases_stay_finite(case, dtype):
     """Values and gradients (with respect to the vertices) stay finite for grazing light
@@ -367,6 +368,7 @@ def test_adaptive_capacity_overflow_raises(ball):
         )
 
 
+@pytest.mark.slow  # on request, for the default run's budget (the position gradients stay)
 def test_gradient_with_respect_to_the_light_direction():
     """The light's direction reaches the photons (the view's window stays fixed): d/d
     zenith of a loss on the caustics map against central differences (float64, step
