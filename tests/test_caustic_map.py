@@ -72,6 +72,8 @@ def test_splatted_maps_converge_to_the_reference(ball, ball_reference):
     assert errors[2] < 0.05
 
 
+@pytest.mark.slow  # on request (slow), for the default run's 10-minute budget: the image-space
+# estimate is also checked against the reference in this file
 def test_image_space_estimate_converges_with_iterations(ball):
     """Shah et al.'s rayGeo update against the exact hits: the median distance to the
     exact exit point and the exact hit on the screen falls with each iteration (the

@@ -11,7 +11,7 @@ EXAMPLES = sorted((Path(__file__).parent.parent / "examples").glob("*.py"))
 
 
 # examples that take more than about 15 s run on request (`-m slow`)
-SLOW = {"glass_caustics", "recover_water", "caustic_maps", "spot_lights"}
+SLOW = {"glass_caustics", "recover_water", "caustic_maps", "spot_lights", "gradient_of_caustic"}
 # examples with their own tests below (run at a small size, numbers checked)
 OWN_TESTS = {"design_lens", "colour_lens"}
 CASES = [

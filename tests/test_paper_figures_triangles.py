@@ -18,6 +18,8 @@ def _load():
     return module
 
 
+@pytest.mark.slow  # on request (slow), for the default run's 10-minute budget: the figure's methods
+# have their own tests
 def test_fig_triangles_vs_splats_quick(tmp_path, capsys):
     assert _load().main(["--quick", "--out", str(tmp_path)]) == 0
     png = tmp_path / "fig_triangles_vs_splats.png"

@@ -392,6 +392,8 @@ def test_distance_map_projection_does_not_leak_behind_occluders():
     assert leak > 0.05  # naive projection draws the slab's caustic on the screen behind it
 
 
+@pytest.mark.slow  # on request (slow), for the default run's 10-minute budget: the distance maps
+# have their own tests (test_distance_map.py)
 def test_distance_map_pipeline_agrees_with_exact_visibility():
     """Without occluders the paper's pipeline (distance-map tracing, Gouraud triangles on
     the light cube map, projection) approximates the screen-space triangles; measured
