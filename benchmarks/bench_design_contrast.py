@@ -191,11 +191,12 @@ def figure(rows: dict) -> None:
     for k, name in enumerate(names):
         path = RENDERS / f"{name}-transport.npy"
         goal = target(name)
-        axes[0, k].imshow(goal / goal.mean(), cmap="gray", vmin=0, vmax=np.quantile(goal / goal.mean(), 0.999))
+        top = np.quantile(goal / goal.mean(), 0.999)
+        axes[0, k].imshow(goal / goal.mean(), cmap="gray", vmin=0, vmax=top)
         axes[0, k].set_title(f"{name}: target", fontsize=8)
         if path.exists():
             img = np.load(path)
-            axes[1, k].imshow(img / img.mean(), cmap="gray", vmin=0, vmax=np.quantile(goal / goal.mean(), 0.999))
+            axes[1, k].imshow(img / img.mean(), cmap="gray", vmin=0, vmax=top)
             r = rows[f"{name}-transport"]["reference"]
             axes[1, k].set_title(f"reference: L2 {r['l2']:.3f}", fontsize=8)
         for a in axes[:, k]:

@@ -105,12 +105,6 @@ from ._inverse.verify import (
 from ._io import (
     read_exr as read_exr,
 )
-from ._transport import (
-    TransportMap as TransportMap,
-)
-from ._transport import (
-    transport_map as transport_map,
-)
 from ._io import (
     read_image as read_image,
 )
@@ -287,6 +281,12 @@ from ._spot_lights import (
     shade_points as shade_points,
 )
 from ._surface import height_and_gradient as height_and_gradient
+from ._transport import (
+    TransportMap as TransportMap,
+)
+from ._transport import (
+    transport_map as transport_map,
+)
 from ._waves import (
     gaussian_bump as gaussian_bump,
 )

@@ -267,8 +267,9 @@ def transport_map(
     - `iterations`: back-and-forth iterations at most.
     - `tol`: stop when the relative L1 misfit of the pushed-forward source falls below.
     - `stall`: stop when 8 iterations in a row did not bring the misfit below
-      ``(1 - stall)`` times its best before them: the grid's own floor (sharp edges and points are resolved to a
-      pixel: a silhouette at 512^2 stalls near 0.085, a smooth pair near 0.02).
+      ``(1 - stall)`` times its best before them: the grid's own floor (sharp edges
+      and points are resolved to a pixel: a silhouette at 512^2 stalls near 0.085, a
+      smooth pair near 0.02).
     - `warn`: warn (``warnings.warn``) when neither `tol` nor a stall ended the
       iterations (they ran out).
 

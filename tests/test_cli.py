@@ -51,8 +51,9 @@ def test_small_window_warns_about_missed_flux(tmp_path, capsys):
     assert jc.read_exr(tmp_path / "caustics_0000.exr").mean() < 0.99  # light was lost
 
 
-@pytest.mark.slow  # on request (slow), for the default run's 10-minute budget: dispersion and Fresnel are
-# tested in test_twopass and test_effects; this runs them through the command line
+# on request (slow), for the default run's 10-minute budget: dispersion and Fresnel
+# are tested in test_twopass and test_effects; this runs them through the command line
+@pytest.mark.slow
 def test_dispersion_gives_colour_and_fresnel_loses_light(tmp_path):
     argv = ["render", "water", "--size", "24x18", "--output", str(tmp_path), "--quiet"]
     argv += ["--extent", "2x1.5", "--heightfield-size", "32x24", "--zenith", "0"]

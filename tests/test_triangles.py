@@ -113,7 +113,8 @@ def test_oblique_flat_slab_shifts_the_aperture_by_snell():
     assert float(result.missed_flux_fraction[0]) < 1e-12
 
 
-# the float64 twin runs on request (slow), for the default run's 10-minute budget; float32 is the default
+# the float64 twin runs on request (slow), for the default run's 10-minute budget
+# (float32, the default, stays)
 @pytest.mark.parametrize("dtype", [np.float32, pytest.param(np.float64, marks=pytest.mark.slow)])
 @pytest.mark.parametrize("reconstruction", ["exact", "gouraud"])
 def test_sharp_focus_is_finite_in_value_and_gradient(dtype, reconstruction):
@@ -231,7 +232,8 @@ def test_refractor_with_one_interface_renders_nothing():
     assert not np.asarray(result.photons.valid).any()
 
 
-# the float64 twin runs on request (slow), for the default run's 10-minute budget; float32 is the default
+# the float64 twin runs on request (slow), for the default run's 10-minute budget
+# (float32, the default, stays)
 @pytest.mark.parametrize("dtype", [np.float32, pytest.param(np.float64, marks=pytest.mark.slow)])
 def test_total_internal_reflection_in_the_sphere_is_finite(dtype):
     scene = sphere_scene(interfaces=4, fresnel=True, light=jc.DirectionalLight.from_angles(35.0))

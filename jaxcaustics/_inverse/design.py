@@ -598,14 +598,7 @@ def _refine_in_image(setup: _Setup, h: np.ndarray, symbol, history, callback):
     goal = setup.goal / setup.goal.mean()
     n = setup.refine_photons or 3 * max(setup.target_shape) + 1
     refine = _ImageRefine(
-        LensScene(
-            HeightField(np.asarray(h), setup.aperture, "clamp"),
-            setup.light,
-            setup.receiver,
-            setup.thickness,
-            setup.throw,
-            ior=setup.ior,
-        ),
+        _lens_scene(setup, np.asarray(h)),
         jnp.asarray(goal, dtype),
         jnp.asarray(goal < 0.05),
         jnp.asarray(np.sqrt(symbol), dtype),
@@ -1226,7 +1219,9 @@ def _prepare(
         or not isinstance(transport_iterations, int)
         or transport_iterations < 1
     ):
-        raise ValueError(f"`transport_iterations` must be an int >= 1, got {transport_iterations!r}")
+        raise ValueError(
+            f"`transport_iterations` must be an int >= 1, got {transport_iterations!r}"
+        )
     if not (isinstance(warn_error, (int, float)) and warn_error > 0):
         raise ValueError(f"`warn_error` must be a positive number, got {warn_error!r}")
     if isinstance(refine_steps, bool) or not isinstance(refine_steps, int) or refine_steps < 0:
@@ -1345,6 +1340,18 @@ def _prepare(
     )
 
 
+def _lens_scene(setup: _Setup, heights) -> LensScene:
+    """The design's lens with `heights` (clamped bicubic over the aperture)."""
+    return LensScene(
+        HeightField(heights, setup.aperture, "clamp"),
+        setup.light,
+        setup.receiver,
+        setup.thickness,
+        setup.throw,
+        ior=setup.ior,
+    )
+
+
 def _level_problem(setup: _Setup, k: int, h: np.ndarray | None) -> tuple[jax.Array, _Problem]:
     """Level `k`'s start (the preconditioned variable ``u``) and its `_Problem`; `h`: the
     previous level's heights (``None`` for the first level)."""
@@ -1364,14 +1371,7 @@ def _level_problem(setup: _Setup, k: int, h: np.ndarray | None) -> tuple[jax.Arr
         # carry the heights to the finer grid, then back to the preconditioned variable
         h_fine = _resample(h, shape)
         u = _laplacian(jnp.asarray(h_fine), dx, dy) * weak
-    scene = LensScene(
-        HeightField(np.zeros(shape), setup.aperture, "clamp"),
-        setup.light,
-        setup.receiver,
-        setup.thickness,
-        setup.throw,
-        ior=setup.ior,
-    )
+    scene = _lens_scene(setup, np.zeros(shape))
     level_goal = jnp.asarray(_level_target(setup.goal, shape), dtype)
     problem_grid = (setup.oversample * rows + 1, setup.oversample * cols + 1)
     problem = _Problem(
@@ -1415,14 +1415,7 @@ def _finish(setup: _Setup, h, history, level_reports, result, t_start: float) ->
             f"{h.max() - h.min():.4g} m, so the surface dips through the bottom face"
         )
         raise ValueError(msg)
-    final = LensScene(
-        HeightField(h, setup.aperture, "clamp"),
-        setup.light,
-        setup.receiver,
-        thickness,
-        setup.throw,
-        ior=setup.ior,
-    )
+    final = _lens_scene(setup, h)
     t0 = time.perf_counter()
     from .._methods.triangles import caustic_triangles
 
