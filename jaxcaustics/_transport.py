@@ -18,16 +18,20 @@ D^2 phi(y)`` with finite differences of the conjugate potential evaluated one ce
 the grid (the Legendre transform extends it exactly), so the step is one smooth,
 vectorised JAX program with no scatter, and it is jit-compiled once per grid shape.
 
-Why this method: it works on grids (the target is an image), it needs no positive
-floor (zero density is an ordinary value of ``nu``: the potential is affine over dark
-regions and the map jumps across them), the cost per step is that of a few Legendre
-transforms and FFTs, and it converges in tens of steps from the identity. Entropic
-(Sinkhorn) transport, e.g. ott-jax, blurs the map by its regularisation and needs
-many iterations at small epsilon on 128^2 x 128^2 couplings; semi-discrete Newton
-(power diagrams) has no vectorised JAX implementation. Legendre transforms here are
-brute force, separable (two passes of ``O(n^3)`` for an ``n x n`` grid), batched over
-rows to bound memory: 128^2 costs milliseconds, 512^2 about 0.1 s a transform on 2
-CPU cores (measurements in the module's tests and `benchmarks/bench_transport.py`).
+Why this method (from reading; the grid measurements are below): it works on grids
+(the target is an image), it needs no positive floor (zero density is an ordinary
+value of ``nu``: the potential is affine over dark regions and the map jumps across
+them), the cost per step is that of a few Legendre transforms and FFTs, and it
+converges in tens of steps from the identity. Entropic (Sinkhorn) transport, e.g.
+ott-jax, blurs the map by its regularisation and needs many iterations at small
+epsilon on 128^2 x 128^2 couplings; semi-discrete Newton (power diagrams) has no
+vectorised JAX implementation. Legendre transforms here are brute force, separable
+(two passes of ``O(n^3)`` for an ``n x n`` grid), batched over rows to bound memory.
+Measured on 2 CPU cores (float32): a 512^2 silhouette target takes 59 iterations in
+about 11 s, compilation included (0.19 s an iteration, four Legendre transforms each),
+with the push-forward misfit stalling at 0.085 (relative L1: sharp edges resolved to a
+pixel); a 128^2 one 2 to 4 s. Entropic transport was not measured here: the reasons
+against it above are from its method, not a run.
 
 Coordinates: cell ``(i, j)``'s centre is ``((j + 0.5) h, (i + 0.5) h)`` with
 ``h = 1 / max(rows, cols)``: the grid covers ``[0, cols h] x [0, rows h]``.
