@@ -267,6 +267,9 @@ def test_gradient_matches_finite_differences():
     np.testing.assert_allclose(grad, fd, rtol=1e-4)
 
 
+# on request (slow), for the default run's 10-minute budget: the adaptive maps' jit
+# tests below stay
+@pytest.mark.slow
 def test_caustics_mapping_is_jit_compatible(ball):
     image = jax.jit(lambda s: jc.caustics_mapping(s, photons=32, map_resolution=32).image)(ball)
     eager = jc.caustics_mapping(ball, photons=32, map_resolution=32).image

@@ -236,6 +236,9 @@ def test_camera_lens_meets_the_goal_from_its_exported_files(tmp_path):
     assert error < 0.05, error
 
 
+# on request (slow), for the default run's 10-minute budget: the Poisson start's
+# non-square levels
+@pytest.mark.slow
 def test_non_square_design_matches_the_target_by_the_reference():
     rows, cols = 12, 20
     y = (np.arange(rows) + 0.5) / rows

@@ -160,6 +160,9 @@ def _rays(n, seed=0, spread=0.03):
     return o, d / np.linalg.norm(d, axis=1, keepdims=True)
 
 
+# on request (slow), for the default run's 10-minute budget: tracing through the maps
+# against exact hits is tested below (exact plane hits, clean misses, the box edge)
+@pytest.mark.slow
 def test_tracing_error_table(box_scene):
     occluders, dmap = box_scene
     o, d = _rays(400)

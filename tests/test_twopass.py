@@ -99,6 +99,9 @@ def test_heightfield_resolution_need_not_match_the_caustic_map():
     assert rel_l1(jc.render(scene), ref) < 0.03
 
 
+# on request (slow), for the default run's 10-minute budget: dispersion is also
+# checked in test_effects and test_triangles
+@pytest.mark.slow
 def test_dispersion_gives_one_channel_per_index():
     heights = sines()
     single = [jc.render(make_scene(heights, EXT, zenith=30.0, ior=n)) for n in (1.33, 1.34)]
