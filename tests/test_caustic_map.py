@@ -144,7 +144,10 @@ def test_adaptive_counts_at_2048_equivalent(ball):
     np.testing.assert_allclose(error.image.sum(), traversal.image.sum(), rtol=1e-2)
 
 
-@pytest.mark.parametrize("metric", ["traversal", pytest.param("error", marks=pytest.mark.slow)])
+# on request (slow), for the default run's budget: batching is tested by default in
+# test_memory.py, and the traversal against the dense map above
+@pytest.mark.slow
+@pytest.mark.parametrize("metric", ["traversal", "error"])
 def test_batches_under_a_memory_limit(ball, metric):
     """A memory limit of a few clusters' photons: many batches, the same image to float
     rounding, and no batch's photon buffer over the limit."""

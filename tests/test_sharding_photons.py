@@ -105,6 +105,9 @@ def check_triangles(entry):
     assert scale > 1.0 and diff <= 1e-12 * scale, entry
 
 
+# on request (slow), for the default run's budget (a subprocess with four host devices);
+# the spot-light table's sharded map runs by default
+@pytest.mark.slow
 def test_sharded_photon_batches_agree_with_one_device(tmp_path):
     """Caustic triangles (lens scene, exact) and caustics mapping (mesh scene) on four
     simulated devices give the single-device images."""

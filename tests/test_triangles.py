@@ -141,7 +141,8 @@ def eqx_replace_heights(scene, heights):
 
 
 @pytest.mark.parametrize("reconstruction", ["exact", "gouraud"])
-@pytest.mark.parametrize("dtype", [np.float32, np.float64])
+# float64 on request (slow), for the default run's budget: the hard case runs in float32
+@pytest.mark.parametrize("dtype", [np.float32, pytest.param(np.float64, marks=pytest.mark.slow)])
 def test_fold_overs_keep_their_flux(dtype, reconstruction):
     # a cylindrical lens (back focal distance 0.3 - 0.02 / 1.5) with the screen well past
     # its line focus: the image is mirrored along x, so every triangle is folded over
@@ -308,7 +309,8 @@ def test_mesh_gradients_match_finite_differences(rng):
         assert float(jnp.vdot(grad, direction)) == pytest.approx(float(fd), rel=1e-5)
 
 
-@pytest.mark.parametrize("dtype", [np.float32, np.float64])
+# float64 on request (slow), for the default run's budget: the hard case runs in float32
+@pytest.mark.parametrize("dtype", [np.float32, pytest.param(np.float64, marks=pytest.mark.slow)])
 def test_degenerate_triangles_keep_their_flux_and_stay_finite(dtype):
     """Photons that land on one point (a collapsed cell) or on a line."""
     from jaxcaustics._methods.triangles import triangles_image

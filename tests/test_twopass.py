@@ -399,6 +399,9 @@ def test_larger_maps_agree_tightly_with_a_dense_reference():
     assert rel_l1(jc.render(scene, samples_x=n, channels_y=m, supersample=4), ref) < 0.005
 
 
+# on request (slow), for the default run's budget: the central-difference gradient test
+# checks the same gradients by default
+@pytest.mark.slow
 def test_gradient_at_flat_water_is_a_descent_direction():
     """At flat water every sample lands on a pixel centre, on the kinks of the tents: the
     image is not differentiable there. The gradient uses the derivative from the right
