@@ -64,7 +64,7 @@ import optimistix as optx
 from .._optics import refract_components
 from .._photons import _grid
 from .._scene import DirectionalLight, HeightField, LensScene, PlaneReceiver, PointLight
-from .._surface import _catmull_rom, ray_surface_hit
+from .._surface import _catmull_rom, height_and_gradient, ray_surface_hit
 from .._transport import bilinear as _bilinear
 from .._transport import neumann_poisson as _neumann_poisson
 from .recover import _laplacian as _five_point
@@ -411,6 +411,18 @@ def _fit_symbol(shape, dx, dy, scale_x, scale_y) -> np.ndarray:
     return symbol
 
 
+def _bicubic(image: jax.Array, px: jax.Array, py: jax.Array) -> jax.Array:
+    """The Catmull-Rom interpolant of `image` (`HeightField`'s, edge samples extended)
+    at pixel coordinates (`bilinear`'s convention: pixel ``(i, j)`` centred at
+    ``(j + 0.5, i + 0.5)``). Its first derivatives are continuous, so a map read at
+    points that drift across its cells (the rest-plane crossings of oblique rays) gets
+    no moire from kinks at the cell lines, as a bilinear read does."""
+    rows, cols = image.shape
+    field = HeightField(np.zeros((rows, cols)), (0.0, cols, 0.0, rows), "clamp")
+    field = eqx.tree_at(lambda f: f.heights, field, image)
+    return height_and_gradient(field, px, py)[0]
+
+
 class _LandingFit(eqx.Module):
     """The landing-point fit as a fixed point ``h = h - M^-1 J^T r(h)`` (Optimistix
     `FixedPointIteration`): `r` the misplacement of the photon grid's vertices in
@@ -427,13 +439,14 @@ class _LandingFit(eqx.Module):
     def residual(self, h):
         """Misplacement (screen pixels) of the rays hitting the surface above the
         vertices: each should land where the transport sends the rest-plane point it
-        crossed (the goal read there bilinearly; the vertex itself for vertical light)."""
+        crossed (the goal read there by `_bicubic`; the vertex itself for vertical
+        light)."""
         x, y, rest_x, rest_y = self.problem.vertex_rays(h, self.sampling)
         rows, cols = self.goal_x.shape
         x0, x1, y0, y1 = self.problem.scene.surface.extent
         u = (rest_x - x0) / (x1 - x0) * (cols - 1) + 0.5  # pixel-centre convention
         v = (rest_y - y0) / (y1 - y0) * (rows - 1) + 0.5
-        gx, gy = _bilinear(self.goal_x, u, v), _bilinear(self.goal_y, u, v)
+        gx, gy = _bicubic(self.goal_x, u, v), _bicubic(self.goal_y, u, v)
         return (x - gx) / self.pixel[0], (y - gy) / self.pixel[1]
 
     def __call__(self, h, args=None):
