@@ -367,3 +367,38 @@ def test_landing_goals_are_read_smoothly_between_their_samples():
         # measured: the slopes differ by 8e-5 of the slope (bicubic: the difference
         # quotients' own error) against 28% (bilinear)
         assert (abs(right - left) < 1e-3 * abs(left)) == continuous, (read.__name__, left, right)
+
+
+def test_edges_under_leaning_light_get_a_bevel_and_the_band_it_takes_no_transport():
+    """Light leaning outwards at an edge that lies below the top's rest plane would meet
+    the surface beyond the aperture (a ring `-h_edge * tan(lean)` wide): the edge rises
+    to the rest plane over that width plus a cell, and the transport leaves out the
+    band whose rays reach the bevel. Vertical light needs none."""
+    from types import SimpleNamespace
+
+    from jaxcaustics import DirectionalLight, PointLight
+    from jaxcaustics._inverse.design import _edge_bevel
+
+    cell = 2.0 / 64
+    h = np.full((64, 64), -0.1)
+    h[32, 32] = 0.0
+    setup = SimpleNamespace(aperture=(-1.0, 1.0, -1.0, 1.0), throw=7.0, thickness=0.5)
+    setup.light = DirectionalLight.from_angles(0.0)
+    weight, keep, k = _edge_bevel(setup, h)
+    assert k == 0 and not weight.any() and np.all(keep == 1.0)
+
+    setup.light = DirectionalLight.from_angles(20.0)  # leans towards +x
+    weight, keep, k = _edge_bevel(setup, h)
+    lean = abs(np.asarray(setup.light.direction)[0] / np.asarray(setup.light.direction)[2])
+    assert k == int(np.ceil(0.1 * lean / cell)) + 1 == 3
+    np.testing.assert_allclose(weight[:, -1], 1.0)  # the edge up to the rest plane
+    assert not weight[:, : 64 - k].any() and not weight[:, 0].any()  # the other edges stay
+    # the band: the bevel's k cells and the ring inwards of its inner end (1.16 cells)
+    band = k + 0.1 * lean / cell
+    np.testing.assert_allclose(keep[5, ::-1][:6], np.clip(np.arange(6) + 1.0 - band, 0, 1))
+    assert np.all(keep[:, :-6] == 1.0)
+
+    setup.light = PointLight(np.array([0.0, 0.0, 7.5 + 10.5]), 1.0)  # leans out everywhere
+    weight, keep, k = _edge_bevel(setup, h)
+    assert k > 0 and all(np.all(w == 1.0) for w in (weight[0], weight[-1], weight[:, 0]))
+    assert keep[32, 32] == 1.0 and keep[0, 32] == 0.0 and keep[32, 0] == 0.0

@@ -31,7 +31,13 @@ preconditioned Gauss-Newton step: the exact gradient ``J^T r`` (a VJP), divided 
 DCT basis by the weak-lens normal operator ``(D / pixel)^2 G^T G`` (``G``: the gradient
 of the heights at the photon vertices). In the weak-lens limit the first step is the
 Brenier potential itself (heights = (potential - |x|^2 / 2) / D); the next ones correct
-for the real optics. Where the target has dark regions the map jumps across them and
+for the real optics. Under point or oblique light, rays that lean outwards at an edge
+lying below the top's rest plane would meet the surface beyond the aperture (where no
+heights steer them: their light lined the screen's edge); there the edge is bevelled up
+to the rest plane, the transport is solved again without the band of the aperture whose
+light the bevel throws away, and the fit continues from its heights (`_edge_bevel`;
+measured on a silhouette under a point light: relative L2 0.133 to 0.055, at the cost
+of a second transport). Where the target has dark regions the map jumps across them and
 the fitted surface (smooth on its grid) spreads a little light over the gaps; there a
 few L-BFGS steps on the image misfit (caustic triangles, plus a penalty on the flux on
 dark pixels) finish the design (`refine_steps`). The irradiance residual of the Poisson
