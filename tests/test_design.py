@@ -402,3 +402,29 @@ def test_edges_under_leaning_light_get_a_bevel_and_the_band_it_takes_no_transpor
     weight, keep, k = _edge_bevel(setup, h)
     assert k > 0 and all(np.all(w == 1.0) for w in (weight[0], weight[-1], weight[:, 0]))
     assert keep[32, 32] == 1.0 and keep[0, 32] == 0.0 and keep[32, 0] == 0.0
+
+
+def test_the_image_refinement_moves_only_modes_its_photons_resolve():
+    """Heights modes finer than the refinement's photon grid are seen aliased (as
+    coarser ones) by its image: the refinement keeps them as they are (measured,
+    20-degree light: 1 - SSIM 0.167 -> 0.157, the texture they grew gone)."""
+    import jax
+    import jax.numpy as jnp
+
+    from jaxcaustics._inverse.design import _ImageRefine, _resolved_modes
+
+    resolved = _resolved_modes((8, 12), 6)  # 5 photon cells a side
+    assert resolved.shape == (8, 12) and resolved[4, 4] and not resolved[5, 0]
+    assert resolved.sum() == 25
+    refine = _ImageRefine(None, None, None, jnp.ones((8, 12)), jnp.asarray(resolved), 6, 4, 0.3)
+    weights = jnp.asarray(np.random.default_rng(0).normal(size=(8, 12)))
+
+    def spectrum_of_gradient(u):
+        grad = jax.grad(lambda u: jnp.sum(weights * refine.heights(u)))(u)
+        return np.asarray(jax.scipy.fft.dctn(grad, type=2, norm="ortho"))
+
+    spectrum = spectrum_of_gradient(jnp.zeros((8, 12)))
+    # zero up to the DCTs' rounding (1e-16) where not resolved; the weights' own elsewhere
+    assert np.abs(spectrum[~resolved]).max() < 1e-12 < np.abs(spectrum[resolved]).min()
+    u = jnp.asarray(np.random.default_rng(1).normal(size=(8, 12)))
+    np.testing.assert_allclose(refine.heights(refine.variable(u)), u, atol=1e-12)

@@ -570,6 +570,14 @@ def _resample_corners(values: np.ndarray, shape) -> np.ndarray:
     return np.array([np.interp(cols, np.arange(values.shape[1]), r) for r in first])
 
 
+def _resolved_modes(shape, photons: int) -> np.ndarray:
+    """The DCT-II modes of a ``shape`` grid of heights that a grid of ``photons`` photons
+    a side (vertices spanning the same aperture) resolves: fewer than ``photons - 1``
+    half-cycles along each axis. ``(rows, cols)`` bool."""
+    rows, cols = shape
+    return (np.arange(rows)[:, None] < photons - 1) & (np.arange(cols)[None, :] < photons - 1)
+
+
 class _ImageRefine(eqx.Module):
     """The image-space finish of the transport start: ``0.5 |E / mean(E) - T|^2 / |T|^2
     + dark_weight * (flux on dark pixels) / (all flux)``, ``E`` the caustic-triangles
@@ -580,12 +588,16 @@ class _ImageRefine(eqx.Module):
     goal: jax.Array  # (rows, cols) target at unit mean
     dark: jax.Array  # (rows, cols) bool: the target below 5% of its mean
     root_symbol: jax.Array  # (hrows, hcols)
+    resolved: jax.Array  # (hrows, hcols) bool: the DCT modes the photon grid resolves
     photons: int = eqx.field(static=True)
     window: int = eqx.field(static=True)
     dark_weight: float = eqx.field(static=True)
 
     def heights(self, u):
         coef = jax.scipy.fft.dctn(u, type=2, norm="ortho") / self.root_symbol
+        # the modes finer than the photon grid stay as they are: its image would see them
+        # aliased, as coarser ones, and the refinement would grow them into a texture
+        coef = jnp.where(self.resolved, coef, jax.lax.stop_gradient(coef))
         return jax.scipy.fft.idctn(coef, type=2, norm="ortho")
 
     def variable(self, h):
@@ -687,6 +699,7 @@ def _refine_in_image(setup: _Setup, h: np.ndarray, symbol, history, callback):
         jnp.asarray(goal, dtype),
         jnp.asarray(goal < 0.05),
         jnp.asarray(np.sqrt(symbol), dtype),
+        jnp.asarray(_resolved_modes(symbol.shape, n)),
         n,
         4,
         0.3,
