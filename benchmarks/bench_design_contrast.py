@@ -171,7 +171,7 @@ def report(rows: dict) -> str:
             f"| {r['target']} | {r['start']} | {r['light']} | {r['total_s']:.1f} | "
             f"{r['transport_s']:.1f} | {r['compile_s']:.1f} | {r['steps']} | "
             f"{r['predicted']:.3f} | {ref['l2']:.3f} | {ref['ssim']:.3f} | "
-            f"{100 * ref['dark']:.1f}% | {'yes' if r['warnings'] else 'no'} |"
+            f"{100 * ref['dark']:.2f}% | {'yes' if r['warnings'] else 'no'} |"
         )
     lines += ["", "![targets and reference renders](design_contrast.png)", ""]
     lines.append(MARKER + json.dumps(rows, indent=1) + "\n-->")
