@@ -79,7 +79,9 @@ def add_design(subparsers) -> None:
         "--throw", type=length, default=0.5, help="lens to screen distance (default 500mm)"
     )
     design.add_argument("--ior", type=float, default=1.5, help="index of refraction (1.5)")
-    design.add_argument("--size", type=int, default=128, help="target columns (default 128)")
+    design.add_argument(
+        "--size", type=_target_columns, default=128, help="target columns (default 128)"
+    )
     design.add_argument(
         "--levels",
         default=None,
@@ -275,6 +277,18 @@ def _loss_plot(losses: list[float], path: Path) -> None:
     fig.tight_layout()
     fig.savefig(path, dpi=80)
     plt.close(fig)
+
+
+def _target_columns(text: str) -> int:
+    """`design --size`: the target's columns, an integer of at least 2."""
+    try:
+        n = int(text)
+    except ValueError as err:
+        msg = f"expected a whole number of pixels, got {text!r}"
+        raise argparse.ArgumentTypeError(msg) from err
+    if n < 2:
+        raise argparse.ArgumentTypeError(f"need at least 2 columns, got {text!r}")
+    return n
 
 
 def _pair(text: str) -> tuple[float, float]:

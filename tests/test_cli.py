@@ -83,6 +83,8 @@ def test_dispersion_gives_colour_and_fresnel_loses_light(tmp_path):
         ["render", "water", "--channels-y", "3"],
         ["render", "water", "--frames", "0"],
         ["render", "water", "--bogus"],
+        ["design", "--size", "0"],  # was an OverflowError traceback
+        ["design", "--size", "12.5"],
     ],
 )
 def test_bad_arguments_exit_with_usage(argv, capsys):
