@@ -676,6 +676,16 @@ def _edge_bevel(setup: _Setup, h: np.ndarray) -> tuple[np.ndarray, np.ndarray, i
         if ring <= 0.1 * cell:
             continue
         k = int(np.ceil(ring / cell)) + 1
+        most = len(inwards[0]) // 4  # wider, a bevel would take most of the light
+        if k > most:
+            warnings.warn(
+                f"design_lens: light leaning out at an edge meets the surface beyond the "
+                f"aperture over {k - 1} cells, more than the bevel's {most}: its light "
+                f"lines the screen's edge (a smaller relief, a farther light or a larger "
+                f"aperture shrink it)",
+                stacklevel=4,
+            )
+            k = most
         widest = max(widest, k)
         weight = np.maximum(weight, np.clip(1.0 - distance / k, 0.0, 1.0))
         width = k - inwards[:, k] * lean / cell  # in cells, per position along the edge
@@ -747,6 +757,7 @@ def _design_by_transport(setup: _Setup, history: list, callback):
     iterations = min(_ROUGH_PASS[0], setup.transport_iterations) if leaning else None
     goal_x, goal_y, plan = _transport_goal(setup, shape, problem, iterations=iterations)
     transport_s = time.perf_counter() - t0
+    transport_steps = plan.iterations
     rows, cols = shape
     dx, dy = setup.width / cols, setup.height / rows
     trows, tcols = setup.target_shape
@@ -785,6 +796,7 @@ def _design_by_transport(setup: _Setup, history: list, callback):
         t1 = time.perf_counter()
         goal_x, goal_y, plan = _transport_goal(setup, shape, problem, keep)
         transport_s += time.perf_counter() - t1
+        transport_steps += plan.iterations
         fit = eqx.tree_at(lambda f: (f.goal_x, f.goal_y), fit, (goal_x, goal_y))
         h, more, result, _, more_s, stalled, rms = _run_fit(
             fit, solver, jnp.asarray(h, dtype), setup.max_steps, history, callback, info
@@ -801,7 +813,7 @@ def _design_by_transport(setup: _Setup, history: list, callback):
         {
             "stage": "transport",
             "shape": shape,
-            "steps": plan.iterations,
+            "steps": transport_steps,  # both passes' under leaning light
             "loss": float(plan.residual[-1]),
             "result": "converged" if plan.converged else "max_steps_reached",
             "seconds": transport_s,
