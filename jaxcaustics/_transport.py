@@ -226,6 +226,7 @@ def _extrapolate_ends(a: jax.Array, axis: int) -> jax.Array:
     return jnp.moveaxis(jnp.concatenate([first[None], a, last[None]]), 0, axis)
 
 
+@jax.jit
 def _corner_map(potential: jax.Array, h):
     """``grad p`` at the corners of the cells of potential `p` ``(rows, cols)``:
     differences across the interior cell edges, averaged over the two cells an edge
