@@ -157,8 +157,10 @@ def _normalised(rho: jax.Array, mass) -> jax.Array:
     return rho * (mass / jnp.where(total > 0, total, 1.0))
 
 
-@functools.partial(jax.jit, static_argnames=("iterations",))
-def _back_and_forth(mu, nu, iterations: int, tol, sigma0, stall):
+@functools.partial(jax.jit, static_argnames=("buffer",))
+def _back_and_forth(mu, nu, iterations, buffer: int, tol, sigma0, stall):
+    """`iterations` at most (traced: passes of different lengths share one compilation),
+    their residuals in a ``(buffer,)`` history (``buffer >= iterations``)."""
     rows, cols = mu.shape
     dtype = mu.dtype
     h = jnp.asarray(1.0 / max(rows, cols), dtype)
@@ -206,14 +208,14 @@ def _back_and_forth(mu, nu, iterations: int, tol, sigma0, stall):
         last = jnp.where(k > 0, residuals[jnp.maximum(k - 1, 0)], jnp.inf)
         # stalled: the last `_PATIENCE` iterations did not improve on the best before
         # them by a fraction `stall`
-        index = jnp.arange(iterations)
+        index = jnp.arange(buffer)
         earlier = jnp.min(jnp.where(index < k - _PATIENCE, residuals, jnp.inf))
         recent = jnp.min(jnp.where((index >= k - _PATIENCE) & (index < k), residuals, jnp.inf))
         moving = jnp.logical_or(k < _MIN_ITERATIONS, recent < earlier * (1 - stall))
         return jnp.logical_and(k < iterations, jnp.logical_and(last > tol, moving))
 
     phi = psi = half_sq
-    residuals = jnp.full((iterations,), jnp.nan, dtype)
+    residuals = jnp.full((buffer,), jnp.nan, dtype)
     carry = (0, phi, psi, mu, jnp.asarray(sigma0, dtype), value(phi, psi), residuals)
     k, phi, psi, rho_y, sigma, _, residuals = jax.lax.while_loop(cond, body, carry)
     return k, legendre(phi, h), residuals
@@ -290,8 +292,9 @@ def transport_map(
     mu = mu / mu.mean()
     nu = nu / nu.mean()
     sigma0 = 4.0 / max(mu.max(), nu.max())
+    buffer = max(128, 1 << (iterations - 1).bit_length())  # few distinct compilations
     k, psi, residuals = _back_and_forth(
-        jnp.asarray(mu, dtype), jnp.asarray(nu, dtype), iterations, tol, sigma0, stall
+        jnp.asarray(mu, dtype), jnp.asarray(nu, dtype), iterations, buffer, tol, sigma0, stall
     )
     h = 1.0 / max(mu.shape)
     mx, my = _corner_map(psi, jnp.asarray(h, dtype))
