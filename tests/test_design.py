@@ -403,6 +403,23 @@ def test_edges_under_leaning_light_get_a_bevel_and_the_band_it_takes_no_transpor
     assert keep[32, 32] == 1.0 and keep[0, 32] == 0.0 and keep[32, 0] == 0.0
 
 
+def test_the_map_smoothing_keeps_ramps_and_removes_a_one_cell_staircase():
+    """The transport map read between its samples (leaning light) is smoothed by
+    [1, 2, 1] / 4: a ramp (a shift, a uniform stretch) stays as it is inside, the
+    discrete Legendre transforms' one-cell alternation goes (measured, 20-degree
+    light before refinement: 1 - SSIM 0.150 -> 0.129, the moire arcs gone)."""
+    from jaxcaustics._inverse.design import _binomial_smooth
+
+    rows, cols = np.mgrid[0:9, 0:11].astype(float)
+    ramp = 0.3 * rows - 0.7 * cols + 2.0
+    smooth = _binomial_smooth(ramp)
+    assert smooth.shape == ramp.shape
+    np.testing.assert_allclose(smooth[1:-1, 1:-1], ramp[1:-1, 1:-1], atol=1e-12)
+    staircase = ramp + 0.1 * (-1.0) ** (rows + cols)
+    np.testing.assert_allclose(_binomial_smooth(staircase)[1:-1, 1:-1], ramp[1:-1, 1:-1], atol=1e-12)
+    np.testing.assert_allclose(_binomial_smooth(np.full((4, 5), 3.0)), 3.0)
+
+
 def test_the_image_refinement_moves_only_modes_its_photons_resolve():
     """Heights modes finer than the refinement's photon grid are seen aliased (as
     coarser ones) by its image: the refinement keeps them as they are (measured,
@@ -412,7 +429,7 @@ def test_the_image_refinement_moves_only_modes_its_photons_resolve():
 
     from jaxcaustics._inverse.design import _ImageRefine, _resolved_modes
 
-    resolved = _resolved_modes((8, 12), 6)  # 5 photon cells a side
+    resolved = _resolved_modes((8, 12), 5)  # 6 photons (5 cells) a side resolve 5 modes
     assert resolved.shape == (8, 12) and resolved[4, 4] and not resolved[5, 0]
     assert resolved.sum() == 25
     refine = _ImageRefine(None, None, None, jnp.ones((8, 12)), jnp.asarray(resolved), 6, 4, 0.3)

@@ -673,6 +673,9 @@ def caustic_triangles(
     triangle_batch = check_int(triangle_batch, "triangle_batch", 1)
     band_triangles = 2 * (rows + 2 * halo - 1) * (grid[1] - 1)
     triangle_batch = min(triangle_batch, band_triangles)
+    # batches of even size: 295k triangles in two of 275k would pad a second, near-empty
+    # one to full size (and twice the work)
+    triangle_batch = -(-band_triangles // -(-band_triangles // triangle_batch))
     if not banded:
         images, missed = _triangles_image(
             ph, receiver.extent, receiver.shape, reconstruction, window, supersample, triangle_batch
