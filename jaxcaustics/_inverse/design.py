@@ -1175,8 +1175,9 @@ def design_lens(
       image misfit plus the flux on dark pixels, with the caustic-triangles forward
       model (`refine_photons` photons per side, default 4 per pixel, window 4), moving
       the heights' modes up to two per pixel; kept only if the misfit fell. 0: no
-      finish. Measured on the white-lettering target (128 x 128): relative L2 0.085 to
-      0.049 and 3.2% to 2.6% of the flux on dark pixels in 8 steps (about 25 s).
+      finish. Measured on the white-lettering target (128 x 128), judged by the
+      reference: relative L2 0.049 and 2.6% of the flux on dark pixels after 8 steps
+      (0.085 and 3.2% without them, measured in an earlier version).
     - `warn_error`: warn when the predicted caustic's relative L2 error against the
       target exceeds this.
     - `max_relief`: the deepest relief the blank allows (metres), e.g. Mitsuba's
