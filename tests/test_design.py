@@ -416,7 +416,8 @@ def test_the_map_smoothing_keeps_ramps_and_removes_a_one_cell_staircase():
     assert smooth.shape == ramp.shape
     np.testing.assert_allclose(smooth[1:-1, 1:-1], ramp[1:-1, 1:-1], atol=1e-12)
     staircase = ramp + 0.1 * (-1.0) ** (rows + cols)
-    np.testing.assert_allclose(_binomial_smooth(staircase)[1:-1, 1:-1], ramp[1:-1, 1:-1], atol=1e-12)
+    smooth = _binomial_smooth(staircase)
+    np.testing.assert_allclose(smooth[1:-1, 1:-1], ramp[1:-1, 1:-1], atol=1e-12)
     np.testing.assert_allclose(_binomial_smooth(np.full((4, 5), 3.0)), 3.0)
 
 
@@ -479,3 +480,50 @@ def test_point_light_design_bevels_its_edges_and_matches_by_the_reference():
     error = rel_l2(ref, target)
     dark = ref[target == 0].sum() / ref.sum()
     assert error < 0.08 and dark < 0.03, (error, dark)
+
+
+def test_the_refinement_loss_gradient_through_its_custom_jvp_is_the_reverse_mode_one():
+    """`_image_loss` hands L-BFGS its reverse-mode gradient where the solver linearises
+    it (faster inside its accept/reject `lax.cond`): the gradient and the linearisation
+    must be those of the loss itself (float64, against central differences)."""
+    import jax
+    import jax.numpy as jnp
+
+    from jaxcaustics import HeightField, LensScene, PlaneReceiver
+    from jaxcaustics._inverse.design import _image_loss, _ImageRefine
+
+    rng = np.random.default_rng(3)
+    heights = 0.02 * rng.normal(size=(12, 12))
+    scene = LensScene(
+        HeightField(heights, (-1.0, 1.0, -1.0, 1.0), "clamp"),
+        DirectionalLight.from_angles(10.0),
+        PlaneReceiver(np.array([-1.2, 1.2, -1.2, 1.2]), (8, 8)),
+        0.5,
+        3.0,
+        ior=1.5,
+    )
+    goal = np.zeros((8, 8))
+    goal[2:6, 1:7] = 1.0
+    goal /= goal.mean()
+    refine = _ImageRefine(
+        scene,
+        jnp.asarray(goal),
+        jnp.asarray(goal < 0.05),
+        jnp.ones((12, 12)),
+        jnp.ones((12, 12), bool),
+        13,
+        4,
+        0.3,
+    )
+    u = jnp.asarray(heights)
+    v = jnp.asarray(rng.normal(size=(12, 12)))
+    # what L-BFGS takes: the loss's linearisation (through the custom JVP), jitted
+    loss, slope = jax.jit(lambda u, v: jax.jvp(lambda u: _image_loss(u, refine), (u,), (v,)))(
+        u, v
+    )
+    forward = jax.jit(lambda u: refine.loss(u))
+    step = 1e-6
+    central = (forward(u + step * v) - forward(u - step * v)) / (2 * step)
+    assert float(loss) == pytest.approx(float(forward(u)), rel=1e-12)
+    assert abs(float(central)) > 1e-3
+    assert float(slope) == pytest.approx(float(central), rel=1e-5)
