@@ -34,6 +34,10 @@ def length(text: str) -> float:
     return value
 
 
+# names in `skimage.data` that are not pictures (or would download several)
+_NOT_PICTURES = {"download_all", "data_dir", "file_hash", "lbp_frontal_face_cascade_filename"}
+
+
 def _load_target(spec: str | None, size: int) -> np.ndarray:
     """The target picture as a float image: a file (PNG, EXR, ...) or a scikit-image
     bundled picture by name (default ``camera``), resized to `size` columns."""
@@ -42,12 +46,19 @@ def _load_target(spec: str | None, size: int) -> np.ndarray:
     from ._io import read_image
 
     name = spec or "camera"
+    not_a_picture = f"`TARGET` {name!r} is neither a file nor a scikit-image picture"
     if Path(name).exists():
         image = np.asarray(read_image(name), float)
-    elif hasattr(data, name):
-        image = np.asarray(getattr(data, name)(), float)
+    elif name in getattr(data, "__all__", ()) and name not in _NOT_PICTURES:
+        try:
+            image = np.asarray(getattr(data, name)(), float)
+        except Exception as err:  # not callable, a tuple of images, a download refused
+            raise ValueError(f"{not_a_picture} ({type(err).__name__}: {err})") from err
+        colour = image.ndim == 3 and image.shape[-1] in (3, 4)
+        if not (image.ndim == 2 or colour) or min(image.shape[:2]) < 2:
+            raise ValueError(f"{not_a_picture} (its data has shape {image.shape})")
     else:
-        raise ValueError(f"`TARGET` {name!r} is neither a file nor a scikit-image picture")
+        raise ValueError(not_a_picture)
     if image.ndim == 3:
         image = image[..., :3].mean(axis=-1)
     rows = max(4, round(size * image.shape[0] / image.shape[1]))
@@ -141,6 +152,8 @@ def _run_levels(
     from ._inverse.checkpoint import run_rounds
 
     checkpoint = out / f"{label}.ckpt.npz"
+    if resume and not checkpoint.is_file():
+        print(f"--resume: no checkpoint at {checkpoint}: starting from the first level")
     _, done, interrupted = run_rounds(
         rounds,
         {"heights": jnp.zeros(shape), "loss": jnp.asarray(np.inf)},

@@ -110,6 +110,15 @@ def test_errors_after_parsing_are_one_line(tmp_path, capsys, monkeypatch):
     assert err.strip() == "jaxcaustics: error: `heights` contains NaN or infinite values"
 
 
+@pytest.mark.parametrize("target", ["data_dir", "file_hash", "stereo_motorcycle", "no_such"])
+def test_a_design_target_that_is_not_a_picture_is_one_line(target, tmp_path, capsys):
+    """Names in `skimage.data` that are not pictures (a folder name, a function of a
+    file name, a tuple of frames) were a TypeError traceback."""
+    assert main(["design", target, "--output", str(tmp_path)]) == 2
+    err = capsys.readouterr().err
+    assert "`TARGET`" in err and "Traceback" not in err
+
+
 def test_version(capsys):
     with pytest.raises(SystemExit) as exc:
         main(["--version"])
@@ -188,3 +197,16 @@ def test_readme_design_example_runs(tmp_path, monkeypatch):
     # photons per pixel side); verify_lens's default 512^2 photons (8 per pixel side) add
     # binning noise (0.062 there) and the flat facets of the solid add more
     assert namespace["check"].nominal < 0.1, namespace["check"]
+
+
+def test_resume_without_a_checkpoint_says_so(tmp_path, capsys, monkeypatch):
+    """`--resume` with no checkpoint in the output folder started afresh silently."""
+    import jaxcaustics._inverse.checkpoint as checkpoint
+    from jaxcaustics._cli_inverse import _run_levels
+
+    monkeypatch.setattr(checkpoint, "run_rounds", lambda *args, **kwargs: (None, 1, False))
+    assert _run_levels([lambda state: state], (4, 4), tmp_path, "design", resume=True) is None
+    assert "no checkpoint" in capsys.readouterr().out
+    (tmp_path / "design.ckpt.npz").write_bytes(b"")
+    assert _run_levels([lambda state: state], (4, 4), tmp_path, "design", resume=True) is None
+    assert "no checkpoint" not in capsys.readouterr().out

@@ -60,6 +60,18 @@ def no_optimisation(monkeypatch):
         (dict(mask=np.zeros((16, 16), bool)), "mask"),
         # a weak lens this strong needs a relief deeper than the blank
         (dict(thickness=1e-5), "thickness"),
+        (dict(ior="1.5"), "ior"),
+        (dict(thickness="0.5"), "thickness"),
+        (dict(levels=(8.7, 16)), "levels"),
+        (dict(rtol=-1e-4), "rtol"),
+        (dict(rtol=float("nan")), "rtol"),
+        (dict(boundary_weight=float("nan")), "boundary_weight"),
+        (dict(boundary_weight=-1.0), "boundary_weight"),
+        (dict(predict_photons=-3), "predict_photons"),
+        (dict(predict_photons=64.5), "predict_photons"),
+        (dict(initial=np.full((8, 8), np.nan)), "initial"),
+        (dict(initial=np.zeros(8)), "initial"),
+        (dict(initial=np.zeros((8, 8), complex)), "initial"),
     ],
 )
 def test_bad_specifications_raise_before_optimisation(no_optimisation, change, name):

@@ -129,6 +129,8 @@ class LensDesign:
 
 
 def _positive(value, name: str) -> float:
+    if isinstance(value, (str, bytes, bool)):
+        raise ValueError(f"`{name}` must be a positive number (metres), got {value!r}")
     try:
         v = float(value)
     except (TypeError, ValueError) as err:
@@ -136,6 +138,11 @@ def _positive(value, name: str) -> float:
     if not (math.isfinite(v) and v > 0):
         raise ValueError(f"`{name}` must be positive and finite (metres), got {value!r}")
     return v
+
+
+def _is_number(value) -> bool:
+    """A real number, not a bool or a string."""
+    return isinstance(value, (int, float, np.integer, np.floating)) and not isinstance(value, bool)
 
 
 def _check_target(target) -> np.ndarray:
@@ -1381,8 +1388,10 @@ def _prepare(
     if levels is None:
         levels = default_levels(t.shape)
     try:
+        if any(isinstance(n, bool) or int(n) != n for n in levels):
+            raise TypeError
         levels = [int(n) for n in levels]
-    except TypeError as err:
+    except (TypeError, ValueError) as err:
         raise ValueError(f"`levels` must be a sequence of ints, got {levels!r}") from err
     if not levels or min(levels) < 4:
         raise ValueError(f"`levels` must be a non-empty sequence of ints >= 4, got {levels!r}")
@@ -1393,9 +1402,30 @@ def _prepare(
     ):
         if isinstance(value, bool) or not isinstance(value, int) or value < low:
             raise ValueError(f"`{name}` must be an int >= {low}, got {value!r}")
-    for name, value in (("regularization", regularization), ("start_scale", start_scale)):
-        if not (isinstance(value, (int, float)) and math.isfinite(value) and value >= 0):
+    for name, value in (
+        ("regularization", regularization),
+        ("start_scale", start_scale),
+        ("boundary_weight", boundary_weight),
+    ):
+        if not (_is_number(value) and math.isfinite(value) and value >= 0):
             raise ValueError(f"`{name}` must be a finite number >= 0, got {value!r}")
+    if not (_is_number(rtol) and math.isfinite(rtol) and rtol > 0):
+        raise ValueError(f"`rtol` must be a finite number > 0, got {rtol!r}")
+    for name, value in (("predict_photons", predict_photons), ("refine_photons", refine_photons)):
+        whole = isinstance(value, (int, np.integer)) and not isinstance(value, bool)
+        if value is not None and not (whole and value >= 2):
+            raise ValueError(f"`{name}` must be an int >= 2 (photons a side), got {value!r}")
+    if initial is not None:
+        start_heights = np.asarray(initial)
+        if start_heights.ndim != 2 or min(start_heights.shape) < 2:
+            raise ValueError(f"`initial` must be (rows, cols) heights, got {start_heights.shape}")
+        real = np.issubdtype(start_heights.dtype, np.floating) or np.issubdtype(
+            start_heights.dtype, np.integer
+        )
+        if not real:
+            raise ValueError(f"`initial` must hold real numbers, got {start_heights.dtype}")
+        if not np.all(np.isfinite(start_heights)):
+            raise ValueError("`initial` contains NaN or infinite heights")
     if max_relief is not None:
         max_relief = _positive(max_relief, "max_relief")
     if start not in ("transport", "poisson"):
@@ -1420,11 +1450,6 @@ def _prepare(
         raise ValueError(f"`warn_error` must be a positive number, got {warn_error!r}")
     if isinstance(refine_steps, bool) or not isinstance(refine_steps, int) or refine_steps < 0:
         raise ValueError(f"`refine_steps` must be an int >= 0, got {refine_steps!r}")
-    if refine_photons is not None and (
-        isinstance(refine_photons, bool) or not isinstance(refine_photons, int)
-        or refine_photons < 2
-    ):
-        raise ValueError(f"`refine_photons` must be an int >= 2, got {refine_photons!r}")
     if start == "transport" and levels_given:
         shapes = [_level_shape(levels[-1], width, height)]
     elif start == "transport":
