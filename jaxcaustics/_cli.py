@@ -22,7 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ._cli_inverse import add_design, add_recover
+from ._cli_inverse import _count, add_design, add_recover
 
 # Above this missed-flux fraction the image is visibly too dark: warn.
 MISSED_FLUX_WARNING = 0.01
@@ -85,19 +85,6 @@ def _zenith(text: str) -> float:
     if value >= 90.0:
         raise argparse.ArgumentTypeError(f"must be in [0, 90) degrees, got {text!r}")
     return value
-
-
-def _count(minimum: int) -> Callable[[str], int]:
-    def parse(text: str) -> int:
-        try:
-            value = int(text)
-        except ValueError:
-            raise argparse.ArgumentTypeError(f"expected an integer, got {text!r}") from None
-        if value < minimum:
-            raise argparse.ArgumentTypeError(f"must be >= {minimum}, got {value}")
-        return value
-
-    return parse
 
 
 def _window(parity: str) -> Callable[[str], int | str]:

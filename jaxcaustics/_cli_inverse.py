@@ -15,6 +15,7 @@ import argparse
 import json
 import re
 import time
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -32,6 +33,21 @@ def length(text: str) -> float:
     if not value > 0:
         raise argparse.ArgumentTypeError(f"a length must be positive, got {text!r}")
     return value
+
+
+def _count(minimum: int) -> Callable[[str], int]:
+    """An argparse type: an integer of at least `minimum`."""
+
+    def parse(text: str) -> int:
+        try:
+            value = int(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected an integer, got {text!r}") from None
+        if value < minimum:
+            raise argparse.ArgumentTypeError(f"must be >= {minimum}, got {value}")
+        return value
+
+    return parse
 
 
 # names in `skimage.data` that are not pictures (or would download several)
@@ -91,7 +107,7 @@ def add_design(subparsers) -> None:
     )
     design.add_argument("--ior", type=float, default=1.5, help="index of refraction (1.5)")
     design.add_argument(
-        "--size", type=_target_columns, default=128, help="target columns (default 128)"
+        "--size", type=_count(2), default=128, help="target columns (default 128)"
     )
     design.add_argument(
         "--levels",
@@ -290,18 +306,6 @@ def _loss_plot(losses: list[float], path: Path) -> None:
     fig.tight_layout()
     fig.savefig(path, dpi=80)
     plt.close(fig)
-
-
-def _target_columns(text: str) -> int:
-    """`design --size`: the target's columns, an integer of at least 2."""
-    try:
-        n = int(text)
-    except ValueError as err:
-        msg = f"expected a whole number of pixels, got {text!r}"
-        raise argparse.ArgumentTypeError(msg) from err
-    if n < 2:
-        raise argparse.ArgumentTypeError(f"need at least 2 columns, got {text!r}")
-    return n
 
 
 def _pair(text: str) -> tuple[float, float]:
