@@ -5,9 +5,10 @@ Setting: Mitsuba 3's caustics tutorial (lens 2 x 2 m, index 1.5, blank 0.5 m, sc
 high-contrast targets of `targets.py` (made before any tuning). Each row is one
 `design_lens` call with its defaults but the start (float32, a fresh process: compilation
 counted). The design is exported (`export_lens`), its height map read back from the EXR
-and rendered by the NumPy reference (`reference.trace_lens`, 2048^2 photons); against the
-target, both at unit mean: relative L2, 1 - SSIM (scikit-image), and the fraction of the
-flux on pixels where the target is below 5% of its mean.
+(with the bicubic's boundary mode from its JSON sidecar) and rendered by the NumPy
+reference (`reference.trace_lens`, 2048^2 photons); against the target, both at unit
+mean: relative L2, 1 - SSIM (scikit-image), and the fraction of the flux on pixels where
+the target is below 5% of its mean.
 
     python benchmarks/bench_design_contrast.py            # all rows (~10 min on 2 cores)
     python benchmarks/bench_design_contrast.py --rows silhouette-transport
@@ -104,9 +105,10 @@ def one(row: str) -> dict:
     with tempfile.TemporaryDirectory() as tmp:
         paths = export_lens(d.scene, tmp, formats=("stl",))
         z_mm = read_exr(paths["height_exr"]).astype(float)
+        boundary = json.loads(paths["height_json"].read_text())["boundary"]
     heights = z_mm[1::2, 1::2] / 1000.0 - SETTING["thickness"]
     exported = LensScene(
-        HeightField(heights, d.scene.surface.extent, "clamp"),
+        HeightField(heights, d.scene.surface.extent, boundary),
         d.scene.light,
         d.scene.receiver,
         SETTING["thickness"],

@@ -106,9 +106,7 @@ def add_design(subparsers) -> None:
         "--throw", type=length, default=0.5, help="lens to screen distance (default 500mm)"
     )
     design.add_argument("--ior", type=float, default=1.5, help="index of refraction (1.5)")
-    design.add_argument(
-        "--size", type=_count(2), default=128, help="target columns (default 128)"
-    )
+    design.add_argument("--size", type=_count(2), default=128, help="target columns (default 128)")
     design.add_argument(
         "--levels",
         default=None,
@@ -229,7 +227,7 @@ def run_design(args: argparse.Namespace) -> int:
                 **spec,
             )
             designs[k] = design
-            fine = _resample(np.asarray(design.heights), final_shape)
+            fine = _resample(np.asarray(design.heights), final_shape, design.scene.surface.boundary)
             return {"heights": jnp.asarray(fine), "loss": jnp.asarray(design.loss_history[-1])}
 
         return run

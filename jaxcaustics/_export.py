@@ -374,7 +374,8 @@ def manufacturability(
     With ``boundary="clamp"`` the outermost one and a half samples are shaped by the
     clamped edge (the surface levels off there, and the interpolant bends sharply where
     the design had a slope): that is part of the surface that is exported, and it is
-    checked unless `margin_mm` leaves it out.
+    checked unless `margin_mm` leaves it out. ``"extrapolate"`` (`design_lens`'s) keeps
+    the edge slope out to the rim instead.
 
     **Arguments:**
 
@@ -585,6 +586,7 @@ def export_lens(
         "pitch_mm": [width / (cols - 1), height / (rows - 1)],
         "layout": "pixel [i, j] at x = j * pitch_mm[0], y = i * pitch_mm[1] mm; "
         "row 0 (top of the file) is y = 0",
+        "boundary": surface.boundary,  # of the bicubic sampled (`HeightField`)
     }
     paths["height_json"].write_text(json.dumps(sidecar, indent=2) + "\n")
     paths["height_exr"] = d / f"{name}_height.exr"

@@ -29,7 +29,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
-BOUNDARY_MODES = ("periodic", "clamp")
+BOUNDARY_MODES = ("periodic", "clamp", "extrapolate")
 
 
 def _is_concrete(x) -> bool:
@@ -92,7 +92,12 @@ class HeightField(eqx.Module):
     - `heights`: array of shape ``(rows, cols)``, metres, indexed ``[y, x]``.
     - `extent`: ``(x_min, x_max, y_min, y_max)`` in metres, covering the pixel edges.
     - `boundary`: ``"periodic"`` (the surface tiles the plane with period ``extent``) or
-      ``"clamp"`` (edge samples extend outwards, so the surface is flat-ish outside).
+      ``"clamp"`` (edge samples extend outwards, so the surface is flat-ish outside) or
+      ``"extrapolate"`` (the samples are continued by odd reflection about the edge
+      sample, ``h[-k] = 2 h[0] - h[k]``: the surface keeps its edge slope out to the
+      extent's edge and 1.5 samples beyond, then levels off; a lens designed with it has
+      no flat collar at its rim, which under ``"clamp"`` bends the light of the
+      outermost half sample back towards the screen's edge).
     - `rotation`: angle in radians by which the field (its sample grid and `extent`) is
       rotated about the centre of `extent`, counter-clockwise seen from above (+x
       towards +y). A periodic field then tiles the plane along its own rotated axes. A

@@ -93,7 +93,20 @@ def _wrap_or_clamp(coord: Array, size: int, boundary: str) -> Array:
     """Bring a continuous sample coordinate into the range the padded array covers."""
     if boundary == "periodic":
         return jnp.mod(coord, size)
-    return jnp.clip(coord, -2.0, size + 1.0)  # beyond this every tap is the edge sample
+    # clamp: beyond this every tap is the edge sample; extrapolate: the surface levels off
+    return jnp.clip(coord, -2.0, size + 1.0)
+
+
+def _padded(heights: Array, boundary: str, axes=(0, 1)) -> Array:
+    """`heights` padded along `axes` for the taps (`_PAD_LOW`, `_PAD_HIGH`) by the
+    boundary's rule: wrapped, edge samples repeated (clamp), or odd reflection about the
+    edge sample (extrapolate: ``h[-k] = 2 h[0] - h[k]``, exact for a linear surface)."""
+    pad = [(_PAD_LOW, _PAD_HIGH) if a in axes else (0, 0) for a in range(heights.ndim)]
+    if boundary == "periodic":
+        return jnp.pad(heights, pad, mode="wrap")
+    if boundary == "extrapolate":
+        return jnp.pad(heights, pad, mode="reflect", reflect_type="odd")
+    return jnp.pad(heights, pad, mode="edge")
 
 
 def _rotation_terms(surface: HeightField) -> tuple[Array, Array, Array, Array]:
@@ -136,10 +149,10 @@ def height_and_gradient(
     cm1, sin, cx, cy = _rotation_terms(surface)
     rx, ry = x - cx, y - cy
     x, y = x + (cm1 * rx + sin * ry), y + (cm1 * ry - sin * rx)
-    u = _wrap_or_clamp((x - x0) / dx - 0.5, cols, surface.boundary)
-    v = _wrap_or_clamp((y - y0) / dy - 0.5, rows, surface.boundary)
-    mode = "wrap" if surface.boundary == "periodic" else "edge"
-    padded = jnp.pad(surface.heights, (_PAD_LOW, _PAD_HIGH), mode=mode)
+    u_raw, v_raw = (x - x0) / dx - 0.5, (y - y0) / dy - 0.5
+    u = _wrap_or_clamp(u_raw, cols, surface.boundary)
+    v = _wrap_or_clamp(v_raw, rows, surface.boundary)
+    padded = _padded(surface.heights, surface.boundary)
     width = cols + _PAD_LOW + _PAD_HIGH
     u_base = jax.lax.stop_gradient(jnp.floor(u))
     v_base = jax.lax.stop_gradient(jnp.floor(v))
@@ -148,6 +161,9 @@ def height_and_gradient(
     first = first + u_base.astype(jnp.int32) + _PAD_LOW - 1
     terms = _bicubic(padded.reshape(-1), first, u - u_base, v - v_base, width, curvature)
     h, hu, hv = terms[:3]
+    if surface.boundary == "extrapolate":  # level beyond the clipped coordinate
+        hu = jnp.where(u == u_raw, hu, 0.0)
+        hv = jnp.where(v == v_raw, hv, 0.0)
     gu, gv = hu / dx, hv / dy
     # The gradient back to world axes: R(rotation) (gu, gv).
     gx, gy = gu + (cm1 * gu - sin * gv), gv + (cm1 * gv + sin * gu)
@@ -155,6 +171,11 @@ def height_and_gradient(
         return h, gx, gy
     sg = jax.lax.stop_gradient
     huu, huv, hvv = (sg(t) for t in terms[3:])
+    if surface.boundary == "extrapolate":
+        flat_u, flat_v = sg(u != u_raw), sg(v != v_raw)
+        huu = jnp.where(flat_u, 0.0, huu)
+        hvv = jnp.where(flat_v, 0.0, hvv)
+        huv = jnp.where(flat_u | flat_v, 0.0, huv)
     dx, dy, cm1, sin = sg(dx), sg(dy), sg(cm1), sg(sin)
     a, b, d = huu / (dx * dx), huv / (dx * dy), hvv / (dy * dy)
     # The Hessian back to world axes, R H R^T, as corrections that vanish at rotation 0.

@@ -192,6 +192,7 @@ def test_export_files_round_trip(tmp_path):
     meta = json.loads(paths["height_json"].read_text())
     lo, hi = meta["min_mm"], meta["max_mm"]
     assert meta["unit"] == "mm" and meta["shape"] == list(z.shape)
+    assert meta["boundary"] == "clamp"  # the interpolant's, to read the samples back with
     assert lo == pytest.approx(z.min()) and hi == pytest.approx(z.max())
     png = jc.read_image(paths["height_png"]).astype(float)
     assert png.min() == 0.0 and png.max() == 1.0  # the full 16-bit range

@@ -138,7 +138,7 @@ def test_reference_runs_with_jax_unimportable_on_a_duck_typed_scene():
 # --------------------------------------------------------------------------- surface
 
 
-@pytest.mark.parametrize("boundary", ["periodic", "clamp"])
+@pytest.mark.parametrize("boundary", ["periodic", "clamp", "extrapolate"])
 def test_surface_height_interpolates_samples_with_the_analytic_gradient(boundary, rng):
     h = rng.normal(size=(12, 9))
     ext = (-1.0, 2.0, 0.5, 2.5)
@@ -164,16 +164,40 @@ def test_surface_height_interpolates_samples_with_the_analytic_gradient(boundary
         np.testing.assert_allclose(
             shifted[0], ref.surface_height(h, ext, boundary, px, py)[0], atol=1e-12
         )
-    else:  # taps clip to the edge: beyond u = -1 (x < x_min - dx / 2) all taps are column 0
+    else:  # beyond u = -2 (x < x_min - 1.5 dx) the surface is level (clamp: from u = -1,
+        # where all taps are column 0; extrapolate: the odd reflection stops there)
         far = ref.surface_height(h, ext, boundary, np.full(5, -7.0), np.linspace(0.5, 2.5, 5))
         np.testing.assert_allclose(far[1], 0.0, atol=1e-12)
         np.testing.assert_allclose(
-            far[0], ref.surface_height(h, ext, boundary, -1.17, np.linspace(0.5, 2.5, 5))[0]
+            far[0], ref.surface_height(h, ext, boundary, -1.6, np.linspace(0.5, 2.5, 5))[0]
         )
 
 
+def test_extrapolate_continues_a_plane_past_the_samples(rng):
+    """``boundary="extrapolate"`` (odd reflection about the edge sample) reproduces a
+    plane exactly out to 1.5 samples beyond the extent (u in [-2, n + 1]), in the reference
+    and in JAX; under "clamp" the slope at the extent's edge is -1/8 of the plane's (the
+    collar that sends a designed lens's rim light back)."""
+    import jax.numpy as jnp
+
+    rows, cols = 6, 7
+    ext = (0.0, 7.0, 0.0, 6.0)  # unit samples
+    y, x = np.mgrid[0:rows, 0:cols] + 0.5
+    plane = 0.3 * x - 0.2 * y + 1.0
+    px, py = rng.uniform(-1.5, 8.5, 300), rng.uniform(-1.5, 7.5, 300)
+    expected = (0.3 * px - 0.2 * py + 1.0, 0.3, -0.2)
+    field = jc.HeightField(plane, ext, "extrapolate")
+    got = jc.height_and_gradient(field, jnp.asarray(px), jnp.asarray(py))
+    exact = ref.surface_height(plane, ext, "extrapolate", px, py)
+    for a, b, c in zip(exact, got, expected, strict=True):
+        np.testing.assert_allclose(a, c, atol=1e-12)
+        np.testing.assert_allclose(np.asarray(b), c, atol=1e-12)
+    _, slope, _ = ref.surface_height(plane, ext, "clamp", np.array([0.0]), np.array([3.0]))
+    np.testing.assert_allclose(slope, -0.3 / 8, atol=1e-12)
+
+
 @pytest.mark.parametrize("zenith", [0.0, 55.0, 80.0])
-@pytest.mark.parametrize("boundary", ["periodic", "clamp"])
+@pytest.mark.parametrize("boundary", ["periodic", "clamp", "extrapolate"])
 def test_intersection_is_the_first_root_to_machine_precision(zenith, boundary, rng):
     """Steep, rough surface: the hit is a root of f(t) = z(t) - rest - H, and a dense scan
     of the ray before it stays above the surface (no earlier crossing was skipped)."""
@@ -185,7 +209,10 @@ def test_intersection_is_the_first_root_to_machine_precision(zenith, boundary, r
     cx, cy = rng.uniform(-0.2, 1.2, 300), rng.uniform(-0.2, 1.2, 300)
     t, hx, hy = intersect_surface(surf, 1.0, d, cx, cy)
     hit, ghx, ghy = ref.surface_height(h, EXT, boundary, cx + t * d[0], cy + t * d[1])
-    np.testing.assert_allclose(t * d[2], hit, rtol=0, atol=1e-14)
+    # Newton stops within a few ulps of the bracket's span, which scales with the bound
+    # range (twice as wide under extrapolate, whose padding reflects the rough edge)
+    atol = 2e-14 * (surf.h_hi - surf.h_lo)
+    np.testing.assert_allclose(t * d[2], hit, rtol=0, atol=atol)
     np.testing.assert_allclose(np.stack([hx, hy]), np.stack([ghx, ghy]), rtol=1e-12, atol=1e-12)
     t_top = surf.h_hi / d[2]
     s = np.linspace(0.0, 1.0, 2001)[:-2]
@@ -198,7 +225,7 @@ def test_intersection_is_the_first_root_to_machine_precision(zenith, boundary, r
 
 
 @pytest.mark.parametrize("rotation", [0.3, 1.1])
-@pytest.mark.parametrize("boundary", ["periodic", "clamp"])
+@pytest.mark.parametrize("boundary", ["periodic", "clamp", "extrapolate"])
 def test_rotated_surface_height_matches_the_jax_side(rotation, boundary, rng):
     """Values and world-axis gradients of a rotated field, NumPy reference against JAX
     (float64), at random points inside and well outside the extent. Measured: at most
@@ -220,7 +247,7 @@ def test_rotated_surface_height_matches_the_jax_side(rotation, boundary, rng):
     np.testing.assert_allclose(expected[1], fx, atol=1e-6)
 
 
-@pytest.mark.parametrize("boundary", ["periodic", "clamp"])
+@pytest.mark.parametrize("boundary", ["periodic", "clamp", "extrapolate"])
 def test_quarter_turn_is_a_rotated_sample_grid(boundary, rng):
     """rotation = +pi/2 (counter-clockwise seen from above, +x towards +y) is the field
     whose samples are ``np.rot90(h, k=-1)``: with row 0 at y_min (y up), k=-1 turns the
@@ -244,7 +271,7 @@ def test_quarter_turn_is_a_rotated_sample_grid(boundary, rng):
     assert np.abs(other[0] - rotated[0]).max() > 0.1
 
 
-@pytest.mark.parametrize("boundary", ["periodic", "clamp"])
+@pytest.mark.parametrize("boundary", ["periodic", "clamp", "extrapolate"])
 def test_intersection_with_a_rotated_surface_is_the_first_root(boundary, rng):
     """As above, on a rotated field: the per-cell bounds hold along the field's own axes,
     so the march takes the light's direction in that frame."""
@@ -257,7 +284,8 @@ def test_intersection_with_a_rotated_surface_is_the_first_root(boundary, rng):
     cx, cy = rng.uniform(-0.2, 1.2, 300), rng.uniform(-0.2, 1.2, 300)
     t, hx, hy = intersect_surface(surf, 1.0, d, cx, cy)
     hit, ghx, ghy = ref.surface_height(h, ext, boundary, cx + t * d[0], cy + t * d[1], rotation)
-    np.testing.assert_allclose(t * d[2], hit, rtol=0, atol=1e-14)
+    atol = 2e-14 * (surf.h_hi - surf.h_lo)  # as above
+    np.testing.assert_allclose(t * d[2], hit, rtol=0, atol=atol)
     np.testing.assert_allclose(np.stack([hx, hy]), np.stack([ghx, ghy]), rtol=1e-12, atol=1e-12)
     t_top = surf.h_hi / d[2]
     tt = t_top + (t[:, None] - t_top) * np.linspace(0.0, 1.0, 2001)[:-2]

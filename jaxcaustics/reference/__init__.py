@@ -39,7 +39,9 @@ Conventions (shared exactly with the JAX side)
   ``u = (x - x_min) / dx - 0.5``, ``j0 = floor(u)``, ``t = u - j0``, taps
   ``j0 - 1 .. j0 + 2`` get weights ``(-t^3 + 2t^2 - t)/2``, ``(3t^3 - 5t^2 + 2)/2``,
   ``(-3t^3 + 4t^2 + t)/2``, ``(t^3 - t^2)/2`` (the same along rows). Tap indices wrap
-  (``"periodic"``) or are clipped to ``[0, n - 1]`` (``"clamp"``). The gradient is the
+  (``"periodic"``) or are clipped to ``[0, n - 1]`` (``"clamp"``); with
+  ``"extrapolate"`` a tap ``k`` outside is ``2 h[edge] - h[mirror]`` (odd reflection
+  about the edge sample) and ``u`` is clipped to ``[-2, n + 1]``. The gradient is the
   analytic derivative of the interpolant; the upward normal is ``(-Hx, -Hy, 1) / |.|``.
 - A height field may be rotated (``surface.rotation``, radians, counter-clockwise seen
   from above, about the centre of its extent): world points are mapped into the field's

@@ -6,7 +6,7 @@ import dataclasses
 
 import numpy as np
 
-BOUNDARY_MODES = ("periodic", "clamp")
+BOUNDARY_MODES = ("periodic", "clamp", "extrapolate")
 
 # Bound on the Catmull-Rom interpolant over t in [0, 1]: the negative weights
 # w(-1) = -t(1-t)^2/2 and w(2) = -t^2(1-t)/2 sum to -t(1-t)/2 >= -1/8, so the positive ones
@@ -19,8 +19,9 @@ _MAX_ABS_DW = np.array([0.5, 25.0 / 18.0, 25.0 / 18.0, 0.5])
 _MAX_ABS_D2W = np.array([2.0, 5.0, 5.0, 2.0])
 _EPS = np.finfo(np.float64).eps
 # Samples padded on each side of the height array, so that the four taps of any point are
-# consecutive entries: a query's base tap is wrapped (periodic) or clipped to [-3, n + 1]
-# (clamp, where the taps then all repeat an edge sample, exactly as clipping each tap does).
+# consecutive entries: a query's base tap is wrapped (periodic), or its coordinate is
+# clipped to [-2, n + 1] (clamp, where the taps then all repeat an edge sample, exactly as
+# clipping each tap does; extrapolate, where the oddly reflected surface levels off).
 _PAD = 4
 # The marcher may step blindly over dips of the surface below the ray shallower than this
 # fraction of the surface's height range (see `intersect_surface`).
@@ -48,10 +49,12 @@ def _weights(t: np.ndarray) -> tuple[list[np.ndarray], list[np.ndarray]]:
 
 def _base_tap(coord: np.ndarray, n: int, periodic: bool) -> tuple[np.ndarray, np.ndarray]:
     """Index of tap 0 in the padded array, and the fractional position t."""
+    if not periodic:
+        coord = np.clip(coord, -2.0, n + 1.0)
     base = np.floor(coord)
     t = coord - base
     j0 = base.astype(np.int64)
-    j0 = np.mod(j0, n) if periodic else np.clip(j0, -3, n + 1)
+    j0 = np.mod(j0, n) if periodic else j0
     return j0 + _PAD, t
 
 
@@ -97,8 +100,8 @@ def _across_rows(peak: np.ndarray, derivative: bool) -> np.ndarray:
 class _Surface:
     """A validated float64 height field, with per-cell bounds for the intersection.
 
-    The bounds hold over every bicubic cell a query can fall in (for "clamp" also the
-    constant-extension cells outside the samples): the interpolant's range
+    The bounds hold over every bicubic cell a query can fall in (for "clamp" and
+    "extrapolate" also the extension cells outside the samples): the interpolant's range
     ``[h_lo, h_hi]``, and per cell upper bounds of ``|Hx|``, ``|Hy|``, ``|Hxx|``,
     ``|Hxy|``, ``|Hyy|`` (arrays of the cells' shape).
 
@@ -109,7 +112,7 @@ class _Surface:
     """
 
     heights: np.ndarray  # (rows, cols)
-    padded: np.ndarray  # (rows + 2 _PAD, cols + 2 _PAD): wrapped or edge-repeated samples
+    padded: np.ndarray  # (rows + 2 _PAD, cols + 2 _PAD): the boundary's padding
     extent: tuple[float, float, float, float]
     periodic: bool
     rotation: float
@@ -162,7 +165,10 @@ class _Surface:
         rows, cols = h.shape
         dx = (ext[1] - ext[0]) / cols
         dy = (ext[3] - ext[2]) / rows
-        padded = np.pad(h, _PAD, mode="wrap" if periodic else "edge")
+        if boundary == "extrapolate":  # h[-k] = 2 h[0] - h[k]: linear surfaces continue
+            padded = np.pad(h, _PAD, mode="reflect", reflect_type="odd")
+        else:
+            padded = np.pad(h, _PAD, mode="wrap" if periodic else "edge")
         # The cells a query can fall in: base taps 0..n-1 (periodic) or -3..n+1 (clamp);
         # cell (i, j) uses the taps window[i:i+4, j:j+4].
         r0, r1 = (0, rows - 1) if periodic else (-3, rows + 1)
@@ -208,8 +214,10 @@ class _Surface:
         rows, cols = self.heights.shape
         stride = self.padded.shape[1]
         flat = self.padded.ravel()
-        jx, tx = _base_tap((x - self.extent[0]) / self.dx - 0.5, cols, self.periodic)
-        iy, ty = _base_tap((y - self.extent[2]) / self.dy - 0.5, rows, self.periodic)
+        u = (x - self.extent[0]) / self.dx - 0.5
+        v = (y - self.extent[2]) / self.dy - 0.5
+        jx, tx = _base_tap(u, cols, self.periodic)
+        iy, ty = _base_tap(v, rows, self.periodic)
         base = iy * stride + jx
         wx, dwx = _weights(tx)
         wy, dwy = _weights(ty)
@@ -231,6 +239,9 @@ class _Surface:
                 grad_y += dwy[a] * g
         if not grad:
             return value, None, None
+        if not self.periodic:  # level beyond the clipped coordinate (extrapolate)
+            grad_x = np.where((u < -2.0) | (u > cols + 1.0), 0.0, grad_x)
+            grad_y = np.where((v < -2.0) | (v > rows + 1.0), 0.0, grad_y)
         grad_x, grad_y = grad_x / self.dx, grad_y / self.dy
         if self.rotation != 0.0:  # back to world axes
             c, s = np.cos(self.rotation), np.sin(self.rotation)
@@ -250,7 +261,7 @@ def surface_height(
         `extent`.
     extent : array_like, shape (4,)
         ``(x_min, x_max, y_min, y_max)`` in metres, covering the pixel edges.
-    boundary : {"periodic", "clamp"}
+    boundary : {"periodic", "clamp", "extrapolate"}
         Tap indices wrap modulo the size, or are clipped to ``[0, n - 1]``.
     x, y : array_like
         Query coordinates in metres (broadcast together to a common shape ``S``).
