@@ -47,6 +47,8 @@ def _as_float_array(value, name: str) -> Array:
             raise ValueError(f"`{name}` must be array-like, got {type(value).__name__}") from err
         if arr.dtype == object or not np.issubdtype(arr.dtype, np.number):
             raise ValueError(f"`{name}` must be numeric, got dtype {arr.dtype}")
+    if jnp.issubdtype(arr.dtype, jnp.complexfloating):  # would lose the imaginary part
+        raise ValueError(f"`{name}` must be real, got complex dtype {arr.dtype}")
     if not jnp.issubdtype(arr.dtype, jnp.floating):
         arr = jnp.asarray(arr, dtype=jnp.result_type(float))
     return jnp.asarray(arr)
@@ -194,10 +196,12 @@ class PlaneReceiver(eqx.Module):
 
     def __init__(self, extent, shape: Sequence[int]):
         self.extent = _check_extent(extent, "extent")
-        try:
-            shp = tuple(int(s) for s in shape)
-        except TypeError as err:
-            raise ValueError(f"`shape` must be (rows, cols), got {shape!r}") from err
+        whole = (int, np.integer)
+        if isinstance(shape, (str, bytes)) or not isinstance(shape, Sequence | np.ndarray):
+            raise ValueError(f"`shape` must be (rows, cols), got {shape!r}")
+        if any(isinstance(v, bool) or not isinstance(v, whole) for v in shape):
+            raise ValueError(f"`shape` must be two whole numbers (rows, cols), got {shape!r}")
+        shp = tuple(int(v) for v in shape)
         if len(shp) != 2 or min(shp) < 1:
             raise ValueError(f"`shape` must be (rows, cols) with at least one pixel, got {shape!r}")
         self.shape = shp  # type: ignore[assignment]
@@ -227,9 +231,13 @@ class Effects:
 def _check_ior(ior) -> float | tuple[float, ...]:
     if isinstance(ior, (jax.Array, np.ndarray)) and ior.ndim == 0:
         ior = float(ior)
+    if isinstance(ior, (str, bytes, bool)):  # a string would split into characters
+        raise ValueError(f"`ior` must be a number or a sequence of numbers, got {ior!r}")
     if isinstance(ior, (int, float)):
         values: tuple[float, ...] = (float(ior),)
     else:
+        if isinstance(ior, Sequence) and any(isinstance(v, (str, bytes, bool)) for v in ior):
+            raise ValueError(f"`ior` must hold numbers, got {ior!r}")
         try:
             values = tuple(float(v) for v in ior)
         except (TypeError, jax.errors.ConcretizationTypeError) as err:
@@ -256,7 +264,8 @@ class WaterScene(eqx.Module):
     - `surface`: a `HeightField` (heights in metres).
     - `light`: a `DirectionalLight`.
     - `receiver`: a `PlaneReceiver` (the caustic map's grid on the ground).
-    - `rest_depth`: depth of the flat water surface above the ground, metres (> 0).
+    - `rest_depth`: depth of the flat water surface above the ground, metres (> 0); the
+      surface must stay above the ground (``rest_depth + min(heights) > 0``).
     - `ior`: relative index of refraction below/above the surface. A number gives a
       single-channel image of shape ``(rows, cols)``; a sequence gives one channel per
       index (dispersion), an image of shape ``(rows, cols, channels)``. Values below 1
@@ -294,6 +303,13 @@ class WaterScene(eqx.Module):
         self.rest_depth = _check_positive_scalar(rest_depth, "rest_depth")
         self.ior = _check_ior(ior)
         self.fresnel = bool(fresnel)
+        if _is_concrete(surface.heights) and _is_concrete(self.rest_depth):
+            low = float(np.min(np.asarray(surface.heights)))
+            if float(self.rest_depth) + low <= 0.0:
+                raise ValueError(
+                    f"`surface` reaches the ground: rest_depth {float(self.rest_depth)}"
+                    f" + min(heights) {low} <= 0 (impossible geometry)"
+                )
 
     @property
     def iors(self) -> tuple[float, ...]:

@@ -20,6 +20,12 @@ def _scene(**over):
     return jc.WaterScene(**kw)
 
 
+def _dip(depth):
+    h = np.zeros((8, 8))
+    h[3, 4] = -depth
+    return h
+
+
 @pytest.mark.parametrize(
     "make, match",
     [
@@ -43,6 +49,17 @@ def _scene(**over):
         (lambda: _scene(ior=-1.333), "ior"),
         (lambda: _scene(ior=()), "ior"),
         (lambda: _scene(surface=np.zeros((8, 8))), "surface"),
+        # strings where numbers are meant, fractions where integers are, complex values
+        (lambda: _scene(ior="15"), "ior"),  # once two channels, 1.0 and 5.0
+        (lambda: _scene(ior=("1.33", 1.34)), "ior"),
+        (lambda: _scene(ior=True), "ior"),
+        (lambda: jc.PlaneReceiver(EXT, (8.7, 8.2)), "shape"),  # once (8, 8)
+        (lambda: jc.PlaneReceiver(EXT, "88"), "shape"),
+        (lambda: jc.PlaneReceiver(EXT, 8), "shape"),
+        (lambda: jc.HeightField(np.zeros((4, 4)) + 1e-3j, EXT), "heights"),
+        # impossible geometry: the water surface reaches the ground
+        (lambda: _scene(surface=jc.HeightField(np.full((8, 8), -1.0), EXT)), "surface"),
+        (lambda: _scene(rest_depth=0.1, surface=jc.HeightField(_dip(0.2), EXT)), "surface"),
     ],
 )
 def test_bad_input_names_the_argument(make, match):
@@ -62,6 +79,13 @@ def test_render_rejects_bad_knobs():
         jc.render(scene, supersample=0)
     with pytest.raises(ValueError, match="method"):
         jc.render(scene, method="raytrace")
+    # a window past every pixel of the 8 x 8 receiver (samples_x=100001 once compiled on
+    # for minutes); 17 and 16 reach every pixel and still render
+    with pytest.raises(ValueError, match="samples_x"):
+        jc.render(scene, samples_x=100001)
+    with pytest.raises(ValueError, match="channels_y"):
+        jc.render(scene, samples_x=7, channels_y=18)
+    assert np.all(np.isfinite(np.asarray(jc.render(scene, samples_x=17, channels_y=16))))
 
 
 def test_effects_describe_what_is_traced():

@@ -56,3 +56,28 @@ def test_verification_reports_robustness():
     assert "Sun" in str(report)
     with pytest.raises(ValueError, match="target"):
         verify_lens(scene, np.ones((4, 4)))
+
+
+@pytest.mark.parametrize(
+    "change, name",
+    [
+        ({"target": np.full((32, 32), np.nan)}, "target"),  # once: every error NaN
+        ({"target": -np.ones((32, 32))}, "target"),
+        ({"target": np.zeros((32, 32))}, "target"),
+        ({"target": np.ones((16, 16))}, "target"),
+        ({"sun_samples": 0}, "sun_samples"),  # once: ZeroDivisionError after a trace
+        ({"sun_samples": 2.5}, "sun_samples"),
+        ({"photons_per_axis": "512"}, "photons_per_axis"),
+        ({"screen_shift": 1.5}, "screen_shift"),
+        ({"screen_shift": np.nan}, "screen_shift"),
+    ],
+)
+def test_bad_verification_arguments_raise_before_tracing(monkeypatch, change, name):
+    def no_trace(*args, **kwargs):
+        raise AssertionError("traced before the arguments were checked")
+
+    monkeypatch.setattr(reference, "trace_mesh", no_trace)
+    kwargs = {"target": np.ones((32, 32)), **change}
+    target = kwargs.pop("target")
+    with pytest.raises(ValueError, match=name):
+        verify_lens(bumpy_lens(), target, **kwargs)

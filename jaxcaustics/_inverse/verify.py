@@ -16,6 +16,7 @@ import math
 import numpy as np
 
 from .._mesh import Mesh, MeshScene
+from .._raster import check_int
 from .._scene import DirectionalLight, LensScene, PlaneReceiver
 
 SUN_DIAMETER_DEG = 0.53
@@ -130,11 +131,24 @@ def verify_lens(
 
     if not isinstance(scene, LensScene):
         raise ValueError(f"`scene` must be a LensScene, got {type(scene).__name__}")
-    target = np.asarray(target, float)
+    try:
+        target = np.asarray(target, float)
+    except (TypeError, ValueError) as err:
+        raise ValueError(f"`target` must be a real image, got {type(target).__name__}") from err
     if target.shape != scene.receiver.shape:
         raise ValueError(
             f"`target` must have the screen's shape {scene.receiver.shape}, got {target.shape}"
         )
+    # checked before any tracing: a NaN target made every error NaN, sun_samples=0 a
+    # ZeroDivisionError after the nominal trace
+    if not np.all(np.isfinite(target)) or target.min() < 0 or not target.max() > 0:
+        raise ValueError("`target` must be finite, non-negative and not all zero")
+    check_int(photons_per_axis, "photons_per_axis", 2)
+    check_int(sun_samples, "sun_samples", 1)
+    if isinstance(screen_shift, bool) or not isinstance(screen_shift, (int, float, np.number)):
+        raise ValueError(f"`screen_shift` must be a number in (0, 1), got {screen_shift!r}")
+    if not 0.0 < float(screen_shift) < 1.0:
+        raise ValueError(f"`screen_shift` must be a number in (0, 1), got {screen_shift!r}")
     nominal_scene = solid_scene(scene, samples=samples)
     nominal = reference.trace_mesh(nominal_scene, photons_per_axis)
 

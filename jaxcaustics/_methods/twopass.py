@@ -292,7 +292,16 @@ def two_pass(
         raise ValueError(f"`hit_iterations` must be an int >= 0, got {hit_iterations!r}")
     if not (isinstance(supersample, int) and supersample >= 1):
         raise ValueError(f"`supersample` must be an int >= 1, got {supersample!r}")
-    if samples_x == "auto" or channels_y == "auto":
+    auto = samples_x == "auto" or channels_y == "auto"
+    if auto:
         samples_x, channels_y = auto_window(scene, hit_iterations, supersample)
     half_x, half_y = _check_window(samples_x, channels_y)
+    rows, cols = scene.receiver.shape
+    # an explicit window: `samples_x=100001` once compiled for minutes
+    if not auto and (half_x > cols or half_y > rows):
+        raise ValueError(
+            f"the window (samples_x={samples_x}, channels_y={channels_y}) reaches past the "
+            f"receiver's {rows} x {cols} pixels: samples_x <= {2 * cols + 1} and "
+            f"channels_y <= {2 * rows} already reach every pixel"
+        )
     return _two_pass(scene, half_x, half_y, hit_iterations, supersample)
