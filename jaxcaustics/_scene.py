@@ -228,6 +228,18 @@ class Effects:
     interfaces: int
 
 
+def _check_surface_above(surface, depth, depth_name: str, failure: str) -> None:
+    """Refuse (concrete) heights that reach below their base: ``depth + min(heights)
+    <= 0``, `depth` the rest plane's height above what lies beneath."""
+    if _is_concrete(surface.heights) and _is_concrete(depth):
+        low = float(np.min(np.asarray(surface.heights)))
+        if float(depth) + low <= 0.0:
+            raise ValueError(
+                f"`surface` {failure}: {depth_name} {float(depth)} + min(heights) {low} <= 0 "
+                "(impossible geometry)"
+            )
+
+
 def _check_ior(ior) -> float | tuple[float, ...]:
     if isinstance(ior, (jax.Array, np.ndarray)) and ior.ndim == 0:
         ior = float(ior)
@@ -303,13 +315,7 @@ class WaterScene(eqx.Module):
         self.rest_depth = _check_positive_scalar(rest_depth, "rest_depth")
         self.ior = _check_ior(ior)
         self.fresnel = bool(fresnel)
-        if _is_concrete(surface.heights) and _is_concrete(self.rest_depth):
-            low = float(np.min(np.asarray(surface.heights)))
-            if float(self.rest_depth) + low <= 0.0:
-                raise ValueError(
-                    f"`surface` reaches the ground: rest_depth {float(self.rest_depth)}"
-                    f" + min(heights) {low} <= 0 (impossible geometry)"
-                )
+        _check_surface_above(surface, self.rest_depth, "rest_depth", "reaches the ground")
 
     @property
     def iors(self) -> tuple[float, ...]:
@@ -427,13 +433,7 @@ class LensScene(eqx.Module):
         self.throw = _check_positive_scalar(throw, "throw")
         self.ior = _check_ior(ior)
         self.fresnel = bool(fresnel)
-        if _is_concrete(surface.heights) and _is_concrete(self.thickness):
-            low = float(np.min(np.asarray(surface.heights)))
-            if float(self.thickness) + low <= 0.0:
-                raise ValueError(
-                    f"`surface` dips through the bottom face: thickness {float(self.thickness)}"
-                    f" + min(heights) {low} <= 0 (impossible geometry)"
-                )
+        _check_surface_above(surface, self.thickness, "thickness", "dips through the bottom face")
         if isinstance(light, PointLight) and _is_concrete(light.position):
             top = float(self.throw) + float(self.thickness)
             if _is_concrete(surface.heights):
