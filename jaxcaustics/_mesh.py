@@ -112,6 +112,14 @@ class Mesh(eqx.Module):
         reverse = {tuple(e) for e in directed[:, ::-1].tolist()}
         return all(tuple(e) in reverse for e in directed.tolist())
 
+    def signed_volume(self) -> float:
+        """The enclosed volume by the divergence theorem (m^3): positive when the faces
+        are wound counter-clockwise seen from outside (outward normals), negative when
+        the mesh is inside out. Meaningful for a closed mesh."""
+        v = np.asarray(self.vertices, dtype=float)
+        a, b, c = (v[np.asarray(self.faces)[:, k]] for k in range(3))
+        return float(np.sum(a * np.cross(b, c)) / 6.0)
+
 
 class MeshScene(eqx.Module):
     """A mesh caustic generator (glass object or mirror) over a screen, lit from above.
@@ -187,6 +195,30 @@ class MeshScene(eqx.Module):
                 "`generator` must be a closed (watertight) mesh for a refractor: some edges"
                 " are not shared by exactly two consistently oriented faces"
             )
+        if (
+            material == "refractor"
+            and _is_concrete(generator.vertices)
+            and _is_concrete(generator.faces)
+            and generator.signed_volume() <= 0.0
+        ):  # it passes the watertight check, and rendered an all-zero image
+            raise ValueError(
+                "`generator` is inside out: its faces are wound inwards (signed volume "
+                f"{generator.signed_volume():.3g} m^3 <= 0); reverse them (faces[:, ::-1])"
+            )
+        if (
+            isinstance(light, PointLight)
+            and _is_concrete(light.position)
+            and _is_concrete(generator.vertices)
+        ):
+            lo = np.asarray(generator.vertices).min(axis=0)
+            hi = np.asarray(generator.vertices).max(axis=0)
+            p = np.asarray(light.position, dtype=float)
+            if p[2] < lo[2] or bool(np.all((p >= lo) & (p <= hi))):
+                where = "below" if p[2] < lo[2] else "inside the bounding box of"
+                raise ValueError(
+                    f"`light` at {p.tolist()} is {where} the generator (z from {lo[2]:.4g} "
+                    f"to {hi[2]:.4g}): it must light the object from outside, above it"
+                )
         for name, mesh in [("generator", generator)] + [
             (f"occluders[{k}]", o) for k, o in enumerate(occluders)
         ]:

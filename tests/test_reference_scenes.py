@@ -681,8 +681,11 @@ def test_bad_scenes_are_rejected():
         ref.trace_mesh(_lens_scene(), 4)
     with pytest.raises(ValueError, match="LensScene"):
         ref.trace_lens(scene, 4)
-    beside = _mesh_scene(_sphere(), _light(position=(0.0, 0.0, 0.6)))  # inside the sphere
-    with pytest.raises(ValueError, match="in front of it"):
+    inside = _light(position=(0.0, 0.0, 0.6))  # inside the sphere
+    with pytest.raises(ValueError, match="`light`"):  # the library refuses it when built
+        _mesh_scene(_sphere(), inside)
+    beside = ns(**{**vars(fake), "material": scene.material, "light": inside})
+    with pytest.raises(ValueError, match="in front of it"):  # and so does the reference
         ref.trace_mesh(beside, 4)
     with pytest.raises(ValueError, match="same size"):
         ref.trace_lens_photons(_lens_scene(), [0.0, 0.1], [0.0])

@@ -27,6 +27,19 @@ def _sphere(z=1.0, radius=0.5):
     return jc.Mesh.from_trimesh(mesh)
 
 
+def _inside_out(mesh):
+    return jc.Mesh(mesh.vertices, np.asarray(mesh.faces)[:, ::-1])
+
+
+def test_a_closed_mesh_knows_its_signed_volume():
+    sphere = _sphere(radius=0.5)  # trimesh's volume of the same icosphere (translation-free)
+    expected = trimesh.creation.icosphere(1, radius=0.5).volume
+    assert sphere.signed_volume() == pytest.approx(expected, rel=1e-9)
+    assert _inside_out(sphere).signed_volume() == pytest.approx(-sphere.signed_volume())
+    beside = _mesh_scene(light=jc.PointLight([2.0, 0.0, 1.0]))  # beside it, level: allowed
+    assert isinstance(beside.light, jc.PointLight)
+
+
 def _mesh_scene(**over):
     kw = dict(
         generator=_sphere(),
@@ -67,6 +80,11 @@ def _mesh_scene(**over):
         (lambda: _mesh_scene(normals="phong"), "normals"),
         (lambda: _mesh_scene(interfaces=0), "interfaces"),
         (lambda: _mesh_scene(occluders=[np.zeros((3, 3))]), "occluders"),
+        # faces wound inwards pass the watertight check (once an all-zero image)
+        (lambda: _mesh_scene(generator=_inside_out(_sphere())), "inside out"),
+        # a point light inside or below the glass (once an all-zero image)
+        (lambda: _mesh_scene(light=jc.PointLight([0.0, 0.0, 1.1])), "light"),
+        (lambda: _mesh_scene(light=jc.PointLight([0.0, 0.0, 0.4])), "light"),
     ],
 )
 def test_bad_input_names_the_argument(make, match):
