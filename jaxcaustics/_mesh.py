@@ -217,7 +217,8 @@ class MeshScene(eqx.Module):
                 where = "below" if p[2] < lo[2] else "inside the bounding box of"
                 raise ValueError(
                     f"`light` at {p.tolist()} is {where} the generator (z from {lo[2]:.4g} "
-                    f"to {hi[2]:.4g}): it must light the object from outside, above it"
+                    f"to {hi[2]:.4g}): it must light the object from outside its bounding "
+                    "box, not from below"
                 )
         for name, mesh in [("generator", generator)] + [
             (f"occluders[{k}]", o) for k, o in enumerate(occluders)

@@ -337,7 +337,7 @@ def test_landing_fit_gradients_are_finite_in_float32(silhouette_design):
         _, problem = design_module._level_problem(setup, 0, None)
         goal_x, goal_y, _ = design_module._transport_goal(setup, shape, problem)
         pixel = jnp.asarray([0.1 / 32, 0.1 / 32], jnp.float32)
-        sampling = design_module._sampling(shape, setup.aperture, problem.grid)
+        sampling = design_module._sampling(shape, setup.aperture, problem.grid, setup.boundary)
         fit = design_module._LandingFit(problem, goal_x, goal_y, jnp.ones(shape), pixel, sampling)
 
         def loss(h):
@@ -661,4 +661,6 @@ def test_a_heights_grid_too_large_for_the_machine_is_refused_before_any_work(mon
         design_lens(blob(), **SPEC, levels=(4096,), start="poisson")
     with pytest.raises(ValueError, match="target's size"):
         design_lens(np.ones((4096, 4096)), **SPEC)
-    design_module._check_design_memory((512, 512), 2)  # 2.3 GiB: fine
+    design_module._check_design_memory((1024, 1024), 2, 0)  # 6.1 GiB: fine
+    with pytest.raises(ValueError, match="GiB"):  # with the refinement's 4 GiB: not
+        design_module._check_design_memory((1024, 1024), 2, design_module._REFINE_MEMORY)

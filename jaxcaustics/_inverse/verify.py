@@ -145,9 +145,8 @@ def verify_lens(
         raise ValueError("`target` must be finite, non-negative and not all zero")
     check_int(photons_per_axis, "photons_per_axis", 2)
     check_int(sun_samples, "sun_samples", 1)
-    if isinstance(screen_shift, bool) or not isinstance(screen_shift, (int, float, np.number)):
-        raise ValueError(f"`screen_shift` must be a number in (0, 1), got {screen_shift!r}")
-    if not 0.0 < float(screen_shift) < 1.0:
+    number = isinstance(screen_shift, (int, float, np.number))
+    if isinstance(screen_shift, bool) or not (number and 0.0 < float(screen_shift) < 1.0):
         raise ValueError(f"`screen_shift` must be a number in (0, 1), got {screen_shift!r}")
     nominal_scene = solid_scene(scene, samples=samples)
     nominal = reference.trace_mesh(nominal_scene, photons_per_axis)

@@ -262,7 +262,8 @@ def surface_height(
     extent : array_like, shape (4,)
         ``(x_min, x_max, y_min, y_max)`` in metres, covering the pixel edges.
     boundary : {"periodic", "clamp", "extrapolate"}
-        Tap indices wrap modulo the size, or are clipped to ``[0, n - 1]``.
+        Tap indices wrap modulo the size, are clipped to ``[0, n - 1]``, or (extrapolate)
+        continue the samples by odd reflection about the edge sample.
     x, y : array_like
         Query coordinates in metres (broadcast together to a common shape ``S``).
     rotation : float, default 0.0
