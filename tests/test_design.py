@@ -508,6 +508,8 @@ def test_point_light_design_bevels_its_edges_and_matches_by_the_reference():
     d = design_lens(target, **SPEC, light=light)
     transport, fit = d.levels[0], d.levels[1]
     assert transport["steps"] > 30 and fit["bevel_cells"] > 0
+    # the light the bevel throws off the screen (measured 11.8%) is said, not dropped
+    assert any("not in the prediction" in note for note in d.warnings), d.warnings
     ref = trace_lens(d.scene, 1024)
     error = rel_l2(ref, target)
     dark = ref[target == 0].sum() / ref.sum()
