@@ -41,6 +41,7 @@ def solve(target, **kwargs):
         "rest_depth": DEPTH,
         "light": light(),
         "heights_shape": (16, 16),
+        "start": "ripple",  # these tests are of the image-space solvers from flat water
         **WINDOW,
         **kwargs,
     }
@@ -159,6 +160,12 @@ GOOD = dict(extent=EXT, rest_depth=DEPTH)
         (np.ones((8, 8)), {"samples_x": 4}, "samples_x"),
         (np.ones((8, 8)), {"initial": np.full((4, 4), np.inf)}, "initial"),
         (np.ones((8, 8)), {"boundary": "mirror"}, "boundary"),
+        (np.ones((8, 8)), {"start": "flat"}, "start"),
+        (
+            np.ones((8, 8)),
+            {"start": "transport", "receiver_extent": (0.0, 2.0, 0.0, 1.0)},
+            "start='transport'",
+        ),
     ],
 )
 def test_bad_inputs_raise_before_any_optimisation(target, kwargs, name, monkeypatch):
@@ -169,6 +176,7 @@ def test_bad_inputs_raise_before_any_optimisation(target, kwargs, name, monkeypa
     monkeypatch.setattr(recover, "_adam", fail)
     monkeypatch.setattr(recover, "auto_window", fail)
     monkeypatch.setattr(recover, "_loss", fail)
+    monkeypatch.setattr(recover, "transport_start", fail)
     kw = {**GOOD, "light": light(), **kwargs}
     with pytest.raises(ValueError, match=f"`{name}`"):
         recover_surface(target, **kw)

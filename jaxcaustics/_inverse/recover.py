@@ -71,6 +71,7 @@ from .._scene import (
     _check_positive_scalar,
 )
 from .._surface import height_and_gradient
+from .water_start import transport_start
 
 SOLVERS = ("levenberg_marquardt", "gauss_newton", "bfgs", "adam")
 WINDOW_MARGIN = 1  # pixels added on each side of the automatic window
@@ -118,16 +119,19 @@ class RecoveryResult:
       (the mean is unobservable).
     - `image`: the caustic rendered from the recovered surface (receiver shape).
     - `target`: the target as compared (normalised if asked).
-    - `loss`: the final objective, the sum of squares of all residuals.
+    - `loss`: the final objective, the sum of squares of all residuals (without an
+      image-space solve: the image misfit's mean square).
     - `image_rmse`: root mean square of ``image - target``.
     - `image_error`: ``||image - target|| / ||target - mean(target)||``, the misfit
       relative to the target's contrast.
     - `missed_flux_fraction`: per channel, light of the final surface that fell outside
       the gather window (should be ~0).
     - `levels`: a `RecoveryLevel` per coarse-to-fine level.
-    - `solver`: the solver's name.
+    - `solver`: the image-space solver's name (``"none"`` without one).
     - `time_s`: total wall time, compilation included.
     - `scene`: the `WaterScene` with the recovered surface (as solved, mean included).
+    - `stages`: a report (dict) per stage of the transport start (``stage``: transport,
+      landing fit, irradiance fit; ``steps``, ``rms``, ``seconds``), empty without it.
     """
 
     heights: np.ndarray
@@ -141,6 +145,7 @@ class RecoveryResult:
     solver: str
     time_s: float
     scene: WaterScene
+    stages: tuple[dict, ...] = ()
 
     @property
     def steps(self) -> tuple[int, ...]:
@@ -387,7 +392,8 @@ def recover_surface(
     heights_shape: Sequence[int] | None = None,
     receiver_extent=None,
     boundary: str = "periodic",
-    solver: Solver = "levenberg_marquardt",
+    start: Literal["auto", "transport", "ripple"] = "auto",
+    solver: Solver | None = None,
     smoothness: float = 1e-3,
     coarse_to_fine: Sequence[int] = (1,),
     max_steps: int = 100,
@@ -418,7 +424,16 @@ def recover_surface(
     - `heights_shape`: ``(rows, cols)`` of the height grid; default: the target's.
     - `receiver_extent`: extent of the caustic map on the ground; default `extent`.
     - `boundary`: the surface's boundary mode, ``"periodic"`` or ``"clamp"``.
-    - `solver`: ``"levenberg_marquardt"``, ``"gauss_newton"``, ``"bfgs"`` or ``"adam"``.
+    - `start`: ``"transport"``: the transport start (`jaxcaustics._inverse.water_start`:
+      optimal transport, then Gauss-Newton fits of the exact rays' landing points and
+      irradiance; for caustics without folds, on the target's pixel grid, which must
+      cover `extent`); ``"ripple"``: flat water with a small ripple, for the image-space
+      solve below; ``"auto"``: the transport start where the target covers `extent`.
+      An `initial` replaces either.
+    - `solver`: the image-space solve after the start: ``"levenberg_marquardt"``,
+      ``"gauss_newton"``, ``"bfgs"`` or ``"adam"`` on the two-pass caustic (the options
+      below); None (default): none after the transport start, Levenberg-Marquardt after
+      the ripple or an `initial`.
     - `smoothness`: weight of the Laplacian prior (dimensionless, see the module).
     - `coarse_to_fine`: strictly decreasing downsampling factors of the height grid,
       ending with 1, e.g. ``(4, 2, 1)``; ``(1,)`` solves on the full grid only.
@@ -466,8 +481,20 @@ def recover_surface(
     )
     if boundary not in BOUNDARY_MODES:
         raise ValueError(f"`boundary` must be one of {BOUNDARY_MODES}, got {boundary!r}")
-    if solver not in SOLVERS:
-        raise ValueError(f"`solver` must be one of {SOLVERS}, got {solver!r}")
+    if start not in ("auto", "transport", "ripple"):
+        raise ValueError(f"`start` must be 'auto', 'transport' or 'ripple', got {start!r}")
+    covers = receiver_extent is None or np.allclose(rec_ext, ext)
+    if start == "transport" and not covers:
+        raise ValueError(
+            "`start='transport'` needs the target to cover the heights' `extent`: "
+            f"`receiver_extent` {rec_ext.tolist()} differs from it (pass start='ripple')"
+        )
+    if start == "auto":
+        start = "transport" if covers and initial is None else "ripple"
+    if solver is None and (start == "ripple" or initial is not None):
+        solver = "levenberg_marquardt"
+    if solver is not None and solver not in SOLVERS:
+        raise ValueError(f"`solver` must be one of {SOLVERS} or None, got {solver!r}")
     smoothness = _nonneg(smoothness, "smoothness")
     level_shapes = _levels(coarse_to_fine, shape)
     max_steps = _pos_int(max_steps, "max_steps")
@@ -514,7 +541,7 @@ def recover_surface(
     if normalize:
         target_arr = target_arr / target_arr.mean()
 
-    start = time.perf_counter()
+    started = time.perf_counter()
     receiver = PlaneReceiver(jnp.asarray(rec_ext, dtype), target_arr.shape[:2])
     pixel_area = float(
         (rec_ext[1] - rec_ext[0])
@@ -525,7 +552,19 @@ def recover_surface(
     height_scale = pixel_area / (depth * float(np.mean([abs(1.0 - 1.0 / n) for n in iors])))
     light = DirectionalLight(jnp.asarray(light.direction, dtype))
     target_j = jnp.asarray(target_arr, dtype)
-    if initial is None:
+    stages: list[dict] = []
+    if initial is None and start == "transport":
+        gray = target_arr if target_arr.ndim == 2 else target_arr.mean(axis=2)
+        found, stages = transport_start(
+            gray,
+            extent=ext,
+            rest_depth=depth,
+            direction=np.asarray(light.direction, float),
+            ior=float(np.mean(iors)),
+            boundary=boundary,
+        )
+        u = resample_heights(jnp.asarray(found / height_scale, dtype), ext, shape, boundary)
+    elif initial is None:
         # Flat water plus a tiny deterministic ripple: at exactly flat water every
         # two-pass sample sits on a kink of its splat kernel, where the renderer is not
         # differentiable; its one-sided gradient there is still a poor first direction
@@ -538,8 +577,7 @@ def recover_surface(
         )
 
     levels: list[RecoveryLevel] = []
-    problem = None
-    for index, level_shape in enumerate(level_shapes):
+    for index, level_shape in enumerate(level_shapes if solver is not None else ()):
         t0 = time.perf_counter()
         u = resample_heights(u, ext, level_shape, boundary)
         hx = (ext[1] - ext[0]) / level_shape[1]
@@ -610,8 +648,20 @@ def recover_surface(
         if callback is not None:
             callback(level)
 
-    assert problem is not None
-    rendered = problem.render(u)
+    scene = WaterScene(
+        HeightField(u * height_scale, jnp.asarray(ext, dtype), boundary),
+        light,
+        receiver,
+        jnp.asarray(depth, dtype),
+        ior=ior,
+    )
+    rendered = two_pass(
+        scene,
+        samples_x=levels[-1].window[0] if levels else "auto",
+        channels_y=levels[-1].window[1] if levels else "auto",
+        hit_iterations=hit_iterations,
+        supersample=supersample,
+    )
     image = np.asarray(rendered.image)
     heights = np.asarray(u * height_scale)
     misfit = image - target_arr
@@ -620,14 +670,15 @@ def recover_surface(
         heights=heights - heights.mean(),
         image=image,
         target=target_arr,
-        loss=levels[-1].loss,
+        loss=levels[-1].loss if levels else float(np.mean(misfit**2)),
         image_rmse=float(np.sqrt(np.mean(misfit**2))),
         image_error=float(np.linalg.norm(misfit) / max(contrast, 1e-300)),
         missed_flux_fraction=np.asarray(rendered.missed_flux_fraction),
         levels=tuple(levels),
-        solver=solver,
-        time_s=time.perf_counter() - start,
-        scene=problem.scene(u),
+        solver=solver or "none",
+        time_s=time.perf_counter() - started,
+        scene=scene,
+        stages=tuple(stages),
     )
 
 
@@ -663,6 +714,7 @@ def compare_solvers(
     """
     true_heights = np.asarray(true_heights, dtype=float)
     options.setdefault("heights_shape", true_heights.shape)
+    options.setdefault("start", "ripple")  # the solvers compared from flat water
     scene = WaterScene(
         HeightField(true_heights, extent, options.get("boundary", "periodic")),
         light,
