@@ -576,6 +576,10 @@ def recover_surface(
             jnp.asarray(init_arr, dtype) / height_scale, ext, level_shapes[0], boundary
         )
 
+    def water(u) -> WaterScene:  # the scene of scaled heights u
+        surface = HeightField(u * height_scale, jnp.asarray(ext, dtype), boundary)
+        return WaterScene(surface, light, receiver, jnp.asarray(depth, dtype), ior=ior)
+
     levels: list[RecoveryLevel] = []
     for index, level_shape in enumerate(level_shapes if solver is not None else ()):
         t0 = time.perf_counter()
@@ -583,13 +587,7 @@ def recover_surface(
         hx = (ext[1] - ext[0]) / level_shape[1]
         hy = (ext[3] - ext[2]) / level_shape[0]
         if samples_x == "auto":
-            flat_scene = WaterScene(
-                HeightField(u * height_scale, jnp.asarray(ext, dtype), boundary),
-                light,
-                receiver,
-                jnp.asarray(depth, dtype),
-                ior=ior,
-            )
+            flat_scene = water(u)
             n, m = auto_window(flat_scene, hit_iterations, supersample)
             window = (
                 max(n + 2 * WINDOW_MARGIN, MIN_WINDOW[0]),
@@ -648,13 +646,7 @@ def recover_surface(
         if callback is not None:
             callback(level)
 
-    scene = WaterScene(
-        HeightField(u * height_scale, jnp.asarray(ext, dtype), boundary),
-        light,
-        receiver,
-        jnp.asarray(depth, dtype),
-        ior=ior,
-    )
+    scene = water(u)
     rendered = two_pass(
         scene,
         samples_x=levels[-1].window[0] if levels else "auto",
