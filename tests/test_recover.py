@@ -67,6 +67,9 @@ def lm_result(case, tmp_path_factory):
     return solve(path)
 
 
+# on request: the default path is now the transport start (tests/test_water_start.py);
+# this one (49 s of compilation) is the two-pass solver's from flat water
+@pytest.mark.slow
 def test_levenberg_marquardt_recovers_the_surface_from_its_caustic(case, lm_result):
     """16 x 16 heights from a 32 x 32 caustic (read from an EXR file), from flat water.
 
