@@ -5,6 +5,12 @@ refraction, extents), `recover_surface` finds the height field whose two-pass ca
 (`jaxcaustics.two_pass`) matches the target, as a nonlinear least-squares problem solved
 with Optimistix.
 
+**The start.** By default (``start="auto"``, where the target covers the heights'
+extent) the heights come from the transport start (`jaxcaustics._inverse.water_start`:
+optimal transport, then Gauss-Newton fits of the exact rays), which is the whole
+recovery for a caustic without folds; the image-space solve below follows it only
+when a `solver` is named. ``start="ripple"`` begins that solve from flat water instead.
+
 **Unknowns.** The heights are solved for in a scaled unit
 ``u = heights / height_scale`` with ``height_scale = dA / (rest_depth |1 - 1/n|)``
 (``dA``: the area of one receiver pixel, ``n``: the index of refraction). For small

@@ -12,18 +12,24 @@ Three stages, each on the target's pixel grid, give the heights:
    band of ``PERIODIC_PAD`` of its own pixels wrapped round it (the transport works on
    a box: the band keeps the box's edges away from the pixels used). The displacement
    of rest-plane point ``a`` is the transport's displacement read at ``a + s``.
-2. **Landing fit**: heights whose exact rays (first hit of the bicubic surface, Snell,
-   the ground) through the rest-plane cell corners land where the transport sends
-   them, in receiver pixels, by Gauss-Newton.
-3. **Irradiance fit**: heights whose exact ray map gives the target itself: per rest-
-   plane cell ``log E(centre of the landed quadrilateral) + log(landed area / pixel
-   area) = 0`` (light conserved in every cell, no folds), by Gauss-Newton. This
+2. **Landing fit**: heights whose exact rays (meeting the bicubic surface above the
+   cell corners, Snell, the ground: `RayMap`) land where the transport sends them, in
+   receiver pixels, by Gauss-Newton.
+3. **Irradiance fit**: heights whose exact ray map gives the target itself: per cell
+   ``log E(centre of the landed quadrilateral) + log(landed area / pixel area) -
+   log(flux) = 0`` (light conserved in every cell, no folds), by Gauss-Newton. This
    corrects what the paraxial transport gets wrong (refraction's nonlinearity, the
-   anisotropy of oblique light, where along the ray the surface is met) and the
-   transport's own floor (its push-forward misfit is a few percent).
+   anisotropy of oblique light, the surface facing the light) and the transport's
+   own floor (its push-forward misfit is a few percent).
 
-**Gauss-Newton** (`gauss_newton`): each step solves the normal equations by conjugate
-gradients (JVPs and VJPs of the residual) in a preconditioned variable ``u = S h``,
+Measured on 128^2 caustics of a smooth periodic sea traced by the NumPy reference
+(`benchmarks/bench_recover.py`): height error 0.33%, 0.41% and 0.27% under light 0, 30
+and 80 degrees from vertical, float32.
+
+**Gauss-Newton** (`gauss_newton`; not Optimistix's: in a first version of these fits,
+in float32, its Levenberg-Marquardt ended after one step at 30 degrees and its CG
+solve returned NaN once the residual was small): each step solves the least-squares
+problem by CGLS (JVPs and VJPs of the residual) in a preconditioned variable ``u = S h``,
 ``S`` the square root of the flat-water normal operator ``J^T J`` in the Fourier basis
 (measured from the response to one sample, so that oblique light, anisotropy and the
 surface's own interpolation are in it); a backtracking line search accepts only steps
