@@ -11,8 +11,10 @@ from __future__ import annotations
 
 import functools
 
+import equinox as eqx
 import jax
 import jax.numpy as jnp
+import numpy as np
 from jaxtyping import Array, Float
 
 from ._scene import HeightField
@@ -182,6 +184,17 @@ def height_and_gradient(
     cos = 1.0 + cm1
     k = sin * sin * (d - a) - 2.0 * cos * sin * b
     return h, gx, gy, a + k, b + (cos * sin * (a - d) - 2.0 * sin * sin * b), d - k
+
+
+def sample_grid(field: Array, px: Array, py: Array, boundary: str = "clamp") -> Array:
+    """The Catmull-Rom interpolant of a 2-D array `field` (`HeightField`'s, with its
+    `boundary`) at pixel coordinates: sample ``(i, j)`` at ``(j + 0.5, i + 0.5)``. Its
+    first derivatives are continuous, so values read at points that drift across the
+    cells get no moire from kinks at the cell lines, as a bilinear read does."""
+    rows, cols = field.shape
+    surface = HeightField(np.zeros((rows, cols)), (0.0, cols, 0.0, rows), boundary)
+    surface = eqx.tree_at(lambda f: f.heights, surface, field)
+    return height_and_gradient(surface, px, py)[0]
 
 
 def _ray_slope(hx: Array, hy: Array, d: Array) -> Array:

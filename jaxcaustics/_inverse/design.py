@@ -76,11 +76,18 @@ from .._optics import refract_components
 from .._photons import _grid
 from .._raster import check_int
 from .._scene import DirectionalLight, HeightField, LensScene, PlaneReceiver, PointLight
-from .._surface import _PAD_LOW, _catmull_rom, _padded, height_and_gradient, ray_surface_hit
+from .._surface import (
+    _PAD_LOW,
+    _catmull_rom,
+    _padded,
+    ray_surface_hit,
+    sample_grid,
+)
 from .._transport import bilinear as _bilinear
 from .._transport import neumann_poisson as _neumann_poisson
 from .recover import _laplacian as _five_point
 from .recover import check_irradiance, resample_heights
+from .water_start import safe_log_area as _safe_log_area
 
 SOLVERS = ("levenberg_marquardt", "gauss_newton", "lbfgs")
 # the transport start's surface boundary (`HeightField`): its edge slope continues to the
@@ -209,13 +216,6 @@ def _area_average(image: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
         return w / w.sum(axis=1, keepdims=True)
 
     return matrix(image.shape[0], shape[0]) @ image @ matrix(image.shape[1], shape[1]).T
-
-
-def _safe_log_area(area: jax.Array, floor: jax.Array) -> jax.Array:
-    """``log(area)``, continued smoothly (and monotonically) below `floor` so that folded
-    (negative) cells give a large finite residual with a useful gradient."""
-    safe = jnp.where(area > floor, area, floor)
-    return jnp.where(area > floor, jnp.log(safe), jnp.log(floor) + (area - floor) / floor)
 
 
 class _Problem(eqx.Module):
@@ -440,15 +440,9 @@ def _fit_symbol(shape, dx, dy, scale_x, scale_y) -> np.ndarray:
 
 
 def _bicubic(image: jax.Array, px: jax.Array, py: jax.Array) -> jax.Array:
-    """The Catmull-Rom interpolant of `image` (`HeightField`'s, edge samples extended)
-    at pixel coordinates (`bilinear`'s convention: pixel ``(i, j)`` centred at
-    ``(j + 0.5, i + 0.5)``). Its first derivatives are continuous, so a map read at
-    points that drift across its cells (the rest-plane crossings of oblique rays) gets
-    no moire from kinks at the cell lines, as a bilinear read does."""
-    rows, cols = image.shape
-    field = HeightField(np.zeros((rows, cols)), (0.0, cols, 0.0, rows), "clamp")
-    field = eqx.tree_at(lambda f: f.heights, field, image)
-    return height_and_gradient(field, px, py)[0]
+    """`sample_grid` with edge samples extended: the landing goals read at the rest-plane
+    crossings of oblique rays, which drift across the cells."""
+    return sample_grid(image, px, py, "clamp")
 
 
 class _LandingFit(eqx.Module):
