@@ -93,6 +93,12 @@ from ._inverse.recover import (
 from ._inverse.recover import (
     recover_surface as recover_surface,
 )
+from ._inverse.sequence import (
+    SequenceResult as SequenceResult,
+)
+from ._inverse.sequence import (
+    recover_sequence as recover_sequence,
+)
 from ._inverse.verify import (
     Verification as Verification,
 )

@@ -6,13 +6,14 @@ pixel), never by the model inverted; everything runs in float32, JAX's default.
 
 import warnings
 
+import jax.numpy as jnp
 import numpy as np
 import pytest
 
 import jaxcaustics as jc
 from jaxcaustics import reference
 from jaxcaustics._inverse import water_start
-from jaxcaustics._inverse.recover import recover_surface
+from jaxcaustics._inverse.recover import camera_blur, deconvolve, recover_surface
 from jaxcaustics._surface import height_and_gradient
 
 EXT = (0.0, 1.0, 0.0, 1.0)
@@ -105,3 +106,40 @@ def test_flat_shift_is_snells_law():
     along = DEPTH * sin_t / np.sqrt(1.0 - sin_t**2)
     np.testing.assert_allclose(np.hypot(*s), along, rtol=1e-12)
     np.testing.assert_allclose(s / np.hypot(*s), d[:2] / np.hypot(d[0], d[1]), rtol=1e-12)
+
+
+@pytest.mark.parametrize("sigma", [1.0, 2.0])
+@pytest.mark.parametrize("boundary", ["periodic", "clamp"])
+def test_the_camera_blur_is_a_gaussian_filter(sigma, boundary):
+    """`camera_blur` against SciPy's Gaussian filter (same radius: 3 sigma)."""
+    from scipy.ndimage import gaussian_filter
+
+    image = np.random.default_rng(2).random((12, 17))
+    mode = "wrap" if boundary == "periodic" else "nearest"
+    want = gaussian_filter(image, sigma, mode=mode, truncate=3.0)
+    got = np.asarray(camera_blur(jnp.asarray(image), sigma, boundary))
+    np.testing.assert_allclose(got, want, atol=1e-6)
+
+
+def test_a_blurred_noisy_caustic_is_recovered_with_the_blur_given(sea):
+    """The reference's caustic seen through a 1-pixel Gaussian blur with 2% Gaussian
+    noise, the blur given to `recover_surface` (Richardson-Lucy before the start).
+    Measured at 32^2: height error 0.029 with the blur given, 0.048 without; the
+    result's image off the photo by 0.017 (relative L1, no further blur). Bounds: 5% on
+    the heights (the issue's bar for photographs), 5% on the image."""
+    from scipy.ndimage import gaussian_filter
+
+    truth, target = sea
+    rng = np.random.default_rng(1)
+    photo = gaussian_filter(target, 1.0, mode="wrap") * (
+        1 + 0.02 * rng.standard_normal(target.shape)
+    )
+    assert (
+        np.abs(deconvolve(photo, 1.0, "periodic") - target).mean() < np.abs(photo - target).mean()
+    )
+    r = recover_surface(photo, extent=EXT, rest_depth=DEPTH, light=light(), blur=1.0)
+    t = truth - truth.mean()
+    error = np.linalg.norm(r.heights - t) / np.linalg.norm(t)
+    assert error < 0.05, error
+    # the result's image is seen through the same blur
+    assert jc.image_error(r.image, photo, blur=0.0) < 0.05

@@ -90,6 +90,11 @@ MIN_WINDOW = (5, 4)  # the smallest automatic window
 # 0.033 and 0.061 on folded seas whose heights came out 16% and 49% off)
 START_MISFIT = 0.02
 INITIAL_RIPPLE = 0.05  # scaled units: the random ripple of the default initial guess
+# Richardson-Lucy iterations that undo a camera blur before the transport start
+# (measured on a 128^2 reference caustic under 30-degree light, blurred by 1 pixel with
+# 2% noise: height error 2.3% without deconvolution, 1.1% after 10 iterations, 1.4%
+# after 30, which sharpen the noise)
+DECONVOLUTION_ITERATIONS = 10
 
 Solver = Literal["levenberg_marquardt", "gauss_newton", "bfgs", "adam"]
 
@@ -130,7 +135,8 @@ class RecoveryResult:
 
     - `heights`: the recovered height field, metres, ``heights_shape``, mean removed
       (the mean is unobservable).
-    - `image`: the caustic rendered from the recovered surface (receiver shape).
+    - `image`: the caustic rendered from the recovered surface (receiver shape),
+      seen through the camera's `blur`.
     - `target`: the target as compared (normalised if asked).
     - `loss`: the final objective, the sum of squares of all residuals (without an
       image-space solve: the image misfit's mean square).
@@ -181,6 +187,59 @@ class RecoveryResult:
         return tuple(optx.RESULTS[r] for r in self.results)
 
 
+# ------------------------------------------------------------------ the camera
+
+
+def gaussian_taps(sigma: float) -> np.ndarray:
+    """The normalised 1-D Gaussian kernel of standard deviation `sigma` pixels, radius
+    ``ceil(3 sigma)``."""
+    radius = max(1, math.ceil(3.0 * sigma))
+    x = np.arange(-radius, radius + 1, dtype=float)
+    taps = np.exp(-0.5 * (x / sigma) ** 2)
+    return taps / taps.sum()
+
+
+def camera_blur(image: Array, sigma: float, boundary: str) -> Array:
+    """`image` ``(rows, cols[, channels])`` seen through a Gaussian PSF of `sigma`
+    pixels (standard deviation), wrapped round a periodic floor, edge-extended
+    otherwise: separable sums of shifted slices (differentiable, no gathers)."""
+    if sigma == 0:
+        return image
+    taps = gaussian_taps(sigma)
+    radius = len(taps) // 2
+    mode = "wrap" if boundary == "periodic" else "edge"
+    for axis in (0, 1):
+        pad = [(0, 0)] * image.ndim
+        pad[axis] = (radius, radius)
+        padded = jnp.pad(image, pad, mode=mode)
+        size = image.shape[axis]
+        image = sum(
+            float(w) * jax.lax.slice_in_dim(padded, k, k + size, axis=axis)
+            for k, w in enumerate(taps)
+        )
+    return image
+
+
+def deconvolve(target: np.ndarray, sigma: float, boundary: str) -> np.ndarray:
+    """`target` ``(rows, cols)`` with a Gaussian blur of `sigma` pixels undone by
+    `DECONVOLUTION_ITERATIONS` of Richardson-Lucy (scikit-image's, a maintained
+    implementation; non-negative by construction), padded like `camera_blur`."""
+    from skimage.restoration import richardson_lucy
+
+    if sigma == 0:
+        return target
+    taps = gaussian_taps(sigma)
+    # scikit-image convolves with zeros outside: a band of 4 kernel radii keeps that
+    # edge away (with 1 radius, the recovered heights were 13% off instead of 1.1%)
+    pad = 4 * (len(taps) // 2)
+    scale = float(target.max())
+    padded = np.pad(target / scale, pad, mode="wrap" if boundary == "periodic" else "edge")
+    sharp = richardson_lucy(
+        padded, np.outer(taps, taps), num_iter=DECONVOLUTION_ITERATIONS, clip=False
+    )
+    return sharp[pad:-pad, pad:-pad] * scale
+
+
 # ------------------------------------------------------------------ the problem
 
 
@@ -213,6 +272,7 @@ class _Problem(eqx.Module):
     channels_y: int = eqx.field(static=True)
     hit_iterations: int = eqx.field(static=True)
     supersample: int = eqx.field(static=True)
+    blur: float = eqx.field(static=True, default=0.0)
 
     def scene(self, u: Array) -> WaterScene:
         surface = HeightField(u * self.height_scale, self.extent, self.boundary)
@@ -229,7 +289,7 @@ class _Problem(eqx.Module):
 
     def __call__(self, u: Array, args: Any = None) -> tuple[Array, Array, Array]:
         del args
-        image = self.render(u).image
+        image = camera_blur(self.render(u).image, self.blur, self.boundary)
         misfit = (image - self.target) / math.sqrt(self.target.size)
         lap = _laplacian(u, self.boundary, self.lap_x, self.lap_y)
         smooth = self.smooth * lap / math.sqrt(u.size)
@@ -414,6 +474,7 @@ def recover_surface(
     channels_y: int | None = None,
     hit_iterations: int = 3,
     supersample: int = 1,
+    blur: float = 0.0,
     normalize: bool | None = None,
     cg_steps: int = 30,
     learning_rate: float = 0.05,
@@ -438,24 +499,30 @@ def recover_surface(
       irradiance; for caustics without folds, on the target's pixel grid, which must
       cover `extent`); ``"ripple"``: flat water with a small ripple, for the image-space
       solve below; ``"auto"``: the transport start where the target covers `extent`.
-      An `initial` replaces either.
+      With an `initial`, the transport start is warm: its irradiance fit alone, from
+      `initial` (a sequence's previous frame; `recover_sequence`); the ripple start
+      is replaced by `initial`.
     - `solver`: the image-space solve after the start: ``"levenberg_marquardt"``,
       ``"gauss_newton"``, ``"bfgs"`` or ``"adam"`` on the two-pass caustic (the options
       below); None (default): none after the transport start, Levenberg-Marquardt after
-      the ripple or an `initial`.
+      the ripple start.
     - `smoothness`: weight of the Laplacian prior (dimensionless, see the module).
     - `coarse_to_fine`: strictly decreasing downsampling factors of the height grid,
       ending with 1, e.g. ``(4, 2, 1)``; ``(1,)`` solves on the full grid only.
     - `max_steps`: the most solver steps per level.
     - `rtol`, `atol`: the solvers' tolerances (Optimistix's Cauchy criterion on the
       scaled heights and on the residuals / loss).
-    - `initial`: initial heights, metres, any grid over `extent` (resampled to the first
-      level); default flat.
+    - `initial`: initial heights, metres, any grid over `extent` (resampled to the grid
+      solved on); default: none (see `start`).
     - `throw`: raise if a level fails (for example reaches `max_steps`); with False the
       result carries the `optimistix.RESULTS` codes instead.
     - `samples_x`, `channels_y`: the two-pass window ``(N, M)``; ``"auto"`` (see the
       module); an int N with `channels_y` None uses ``M = N - 1``.
     - `hit_iterations`, `supersample`: the two-pass knobs (see `two_pass`).
+    - `blur`: the camera's blur, a Gaussian PSF of this standard deviation in target
+      pixels (0: none). The transport start works on the target deconvolved by
+      Richardson-Lucy (`deconvolve`); the image-space solve blurs its rendered caustic
+      instead (`camera_blur`), and so does the result's `image`.
     - `normalize`: scale the target so its mean is 1 (the mean irradiance of flat
       water); default: True for a file path (whose scale is arbitrary), False for an
       array.
@@ -499,8 +566,8 @@ def recover_surface(
             f"`receiver_extent` {rec_ext.tolist()} differs from it (pass start='ripple')"
         )
     if start == "auto":
-        start = "transport" if covers and initial is None else "ripple"
-    if solver is None and (start == "ripple" or initial is not None):
+        start = "transport" if covers else "ripple"
+    if solver is None and start == "ripple":
         solver = "levenberg_marquardt"
     if solver is not None and solver not in SOLVERS:
         raise ValueError(f"`solver` must be one of {SOLVERS} or None, got {solver!r}")
@@ -513,6 +580,12 @@ def recover_surface(
     if isinstance(hit_iterations, bool) or not hit_iterations_ok:
         raise ValueError(f"`hit_iterations` must be an int >= 0, got {hit_iterations!r}")
     supersample = _pos_int(supersample, "supersample")
+    blur = _nonneg(blur, "blur")
+    if blur > min(target_arr.shape[:2]) / 6:
+        raise ValueError(
+            f"`blur` of {blur} pixels is wider than a sixth of the target "
+            f"{target_arr.shape[:2]}: nothing would be left to recover"
+        )
     learning_rate = _nonneg(learning_rate, "learning_rate")
     if learning_rate == 0:
         raise ValueError("`learning_rate` must be positive")
@@ -562,8 +635,12 @@ def recover_surface(
     light = DirectionalLight(jnp.asarray(light.direction, dtype))
     target_j = jnp.asarray(target_arr, dtype)
     stages: list[dict] = []
-    if initial is None and start == "transport":
+    if start == "transport":
         gray = target_arr if target_arr.ndim == 2 else target_arr.mean(axis=2)
+        gray = deconvolve(gray, blur, boundary)
+        warm = None
+        if initial is not None:  # a warm start: the irradiance fit alone, from `initial`
+            warm = np.asarray(resample_heights(init_arr, ext, gray.shape, boundary), float)
         found, stages = transport_start(
             gray,
             extent=ext,
@@ -571,6 +648,7 @@ def recover_surface(
             direction=np.asarray(light.direction, float),
             ior=float(np.mean(iors)),
             boundary=boundary,
+            initial=warm,
         )
         u = resample_heights(jnp.asarray(found / height_scale, dtype), ext, shape, boundary)
         misfit = stages[-1]["rms"]
@@ -629,6 +707,7 @@ def recover_surface(
             channels_y=window[1],
             hit_iterations=hit_iterations,
             supersample=supersample,
+            blur=blur,
         )
         initial_loss = float(_loss(problem, u))
         if solver == "adam":
@@ -672,7 +751,7 @@ def recover_surface(
         hit_iterations=hit_iterations,
         supersample=supersample,
     )
-    image = np.asarray(rendered.image)
+    image = np.asarray(camera_blur(rendered.image, blur, boundary))
     heights = np.asarray(u * height_scale)
     misfit = image - target_arr
     contrast = np.linalg.norm(target_arr - target_arr.mean())

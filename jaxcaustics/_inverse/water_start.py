@@ -345,29 +345,21 @@ def transport_start(
     steps: int = 10,
     rtol: float = 0.05,
     cg_steps: int = CG_STEPS,
+    initial: np.ndarray | None = None,
 ):
     """Heights ``target.shape`` (metres, over `extent`, which is also the target's) whose
     caustic is `target` (irradiance relative to flat water, mean about 1), by the three
     stages of the module, each fit at most `steps` Gauss-Newton steps of `cg_steps`
     conjugate-gradient iterations, stopping when a step lowers its loss by less than
-    `rtol`. Returns ``(heights, stages)``: NumPy heights and a report per stage
-    (``stage``, ``steps``, ``rms``, ``seconds`` and the stage's own entries)."""
+    `rtol`. With `initial` (heights ``target.shape``, metres: a warm start, e.g. the
+    previous frame of a sequence) only the irradiance fit runs, from `initial`.
+    Returns ``(heights, stages)``: NumPy heights and a report per stage (``stage``,
+    ``steps``, ``rms``, ``seconds`` and the stage's own entries)."""
     dtype = jnp.result_type(float)
     rows, cols = target.shape
     x0, x1, y0, y1 = (float(v) for v in extent)
     pixel = np.array([(x1 - x0) / cols, (y1 - y0) / rows])
     shift = flat_shift(direction, ior, rest_depth)
-    t0 = time.perf_counter()
-    dx, dy, plan = corner_displacement(target / target.mean(), boundary, transport_iterations)
-    stages = [
-        {
-            "stage": "transport",
-            "steps": plan.iterations,
-            "rms": float(plan.residual[-1]),  # relative L1 of the push-forward
-            "converged": plan.converged,
-            "seconds": time.perf_counter() - t0,
-        }
-    ]
     jj, ii = np.meshgrid(np.arange(cols + 1), np.arange(rows + 1))
     rays = RayMap(
         jnp.asarray(x0 + jj * pixel[0], dtype),
@@ -379,19 +371,35 @@ def transport_start(
         1.0 / ior,
         boundary,
     )
-    # the displacement of corner a: the transport's at a + s (pixel coordinates of the
-    # corner grid, whose sample (i, j) `_read` puts at (j + 0.5, i + 0.5))
-    px = jnp.asarray(jj + shift[0] / pixel[0] + 0.5, dtype)
-    py = jnp.asarray(ii + shift[1] / pixel[1] + 0.5, dtype)
-    goal_x, goal_y = _landing_goal(
-        jnp.asarray(dx, dtype), jnp.asarray(dy, dtype), px, py, shift / pixel, boundary
-    )
-    h = jnp.zeros((rows, cols), dtype)
+    stages: list[dict] = []
+    fits = (("irradiance fit", (0.0, 1.0), 2, rows * cols),)
+    if initial is None:
+        t0 = time.perf_counter()
+        dx, dy, plan = corner_displacement(target / target.mean(), boundary, transport_iterations)
+        stages.append(
+            {
+                "stage": "transport",
+                "steps": plan.iterations,
+                "rms": float(plan.residual[-1]),  # relative L1 of the push-forward
+                "converged": plan.converged,
+                "seconds": time.perf_counter() - t0,
+            }
+        )
+        # the displacement of corner a: the transport's at a + s (pixel coordinates of
+        # the corner grid, whose sample (i, j) `_read` puts at (j + 0.5, i + 0.5))
+        px = jnp.asarray(jj + shift[0] / pixel[0] + 0.5, dtype)
+        py = jnp.asarray(ii + shift[1] / pixel[1] + 0.5, dtype)
+        goal_x, goal_y = _landing_goal(
+            jnp.asarray(dx, dtype), jnp.asarray(dy, dtype), px, py, shift / pixel, boundary
+        )
+        h = jnp.zeros((rows, cols), dtype)
+        fits = (("landing fit", (1.0, 0.0), 1, 2 * (rows + 1) * (cols + 1)),) + fits
+    else:  # no landing goals: the irradiance fit alone
+        goal_x = goal_y = jnp.zeros((rows + 1, cols + 1), dtype)
+        h = jnp.asarray(initial - np.mean(initial), dtype)
     log_target = np.log(np.maximum(target / target.mean(), LOG_FLOOR))
     flat_log = jnp.zeros((rows, cols), dtype)
     misfit = StartMisfit(rays, goal_x, goal_y, jnp.asarray(log_target, dtype), jnp.ones(2, dtype))
-    fits = (("landing fit", (1.0, 0.0), 1, 2 * (rows + 1) * (cols + 1)),)
-    fits += (("irradiance fit", (0.0, 1.0), 2, rows * cols),)
     for name, weights, order, count in fits:
         misfit = eqx.tree_at(lambda m: m.weights, misfit, jnp.asarray(weights, dtype))
         # the operator at flat water, without the target's own variation
