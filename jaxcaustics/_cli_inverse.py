@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import re
 import time
 from collections.abc import Callable
@@ -317,27 +318,48 @@ def _pair(text: str) -> tuple[float, float]:
 def add_recover(subparsers) -> None:
     recover = subparsers.add_parser(
         "recover",
-        help="recover a water surface from a photograph of its caustic",
+        help="recover a water surface from a photograph (or video frames) of its caustic",
         description=(
             "Recover the water height field whose caustic on the pool floor is TARGET (a "
-            "PNG or EXR, scaled so that its mean is flat water's irradiance). Without "
-            "TARGET, a caustic is rendered from a built-in sea and recovered, and the "
-            "recovered heights are compared with the true ones. Checkpoints after every "
-            "coarse-to-fine level (--resume continues; Ctrl-C keeps the last one)."
+            "PNG, JPEG, TIFF or EXR, scaled so that its mean is flat water's irradiance). "
+            "Several TARGETs, or a folder of them, are frames of a video: recovered in "
+            "order, each warm-started from the one before, with a checkpoint after every "
+            "frame (--resume continues; Ctrl-C keeps the frames done). Without TARGET, "
+            "the caustic of a built-in sea is traced by the NumPy reference and recovered, "
+            "and the recovered heights are compared with the true ones. Writes the "
+            "heights (EXR), the recovered caustic, the target and the residual map "
+            "(recovered minus target) per frame, and summary.json."
         ),
     )
-    recover.add_argument("target", nargs="?", default=None, metavar="TARGET")
+    recover.add_argument("target", nargs="*", metavar="TARGET")
     recover.add_argument("--size", default="1,1", type=_pair, help="floor area W,H in metres")
     recover.add_argument("--depth", type=float, default=0.5, help="rest depth, metres (0.5)")
     recover.add_argument("--zenith", type=float, default=20.0, help="light zenith, degrees")
     recover.add_argument("--azimuth", type=float, default=0.0, help="light azimuth, degrees")
     recover.add_argument("--ior", type=float, default=1.333, help="water's index (1.333)")
-    recover.add_argument("--heights", type=int, default=32, help="height samples per axis (32)")
-    recover.add_argument("--levels", default="4,2,1", help="coarse-to-fine factors (4,2,1)")
+    recover.add_argument(
+        "--boundary", default="periodic", choices=("periodic", "clamp"), help="surface edges"
+    )
+    recover.add_argument(
+        "--blur", type=float, default=0.0, help="camera blur, Gaussian PSF sigma in pixels (0)"
+    )
+    recover.add_argument(
+        "--gamma",
+        type=float,
+        default=1.0,
+        help="decode file values v as v**GAMMA (2.2 for an sRGB photograph; 1: linear data)",
+    )
+    recover.add_argument(
+        "--heights", type=int, default=None, help="height samples per axis (the target's)"
+    )
     recover.add_argument(
         "--solver",
-        default="levenberg_marquardt",
-        choices=("levenberg_marquardt", "gauss_newton", "bfgs", "adam"),
+        default="none",
+        choices=("none", "levenberg_marquardt", "gauss_newton", "bfgs", "adam"),
+        help="image-space refinement after the transport start (none)",
+    )
+    recover.add_argument(
+        "--levels", default="1", help="coarse-to-fine factors of the --solver, e.g. 4,2,1"
     )
     recover.add_argument("--steps", type=int, default=50, help="solver steps per level (50)")
     recover.add_argument("--output", type=Path, default=Path("recover"), help="output folder")
@@ -345,100 +367,127 @@ def add_recover(subparsers) -> None:
     recover.set_defaults(func=run_recover)
 
 
-def run_recover(args: argparse.Namespace) -> int:
-    import jax.numpy as jnp
-
-    from . import DirectionalLight, HeightField, PlaneReceiver, WaterScene, two_pass, write_exr
-    from ._inverse.recover import recover_surface, resample_heights
-    from ._io import read_image, write_png
+def _built_in_sea(args, extent, light) -> tuple[np.ndarray, np.ndarray]:
+    """The CLI's demonstration: a 64^2 sea and its caustic traced by the reference."""
+    from . import HeightField, PlaneReceiver, WaterScene, reference
     from ._waves import wave_heights
 
+    n = args.heights or 64
+    truth = np.asarray(
+        wave_heights(
+            (n, n),
+            extent,
+            amplitude=0.003,
+            depth=args.depth,
+            wavelength_range=(0.3, 1.0),
+            num_waves=8,
+            seed=3,
+        ),
+        float,
+    )
+    scene = WaterScene(
+        HeightField(truth, extent),
+        light,
+        PlaneReceiver(extent, (n, n)),
+        args.depth,
+        ior=args.ior,
+    )
+    return truth, reference.trace_water(scene, photons_per_axis=16)
+
+
+def _write_residual(path: Path, residual: np.ndarray) -> None:
+    """The residual map (recovered minus target, relative to flat water) as a PNG."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(4.6, 4))
+    limit = max(float(np.abs(residual).max()), 1e-12)
+    shown = ax.imshow(residual, origin="lower", cmap="RdBu_r", vmin=-limit, vmax=limit)
+    fig.colorbar(shown, ax=ax, label="recovered - target")
+    ax.set_title("where the recovery does not fit")
+    fig.tight_layout()
+    fig.savefig(path, dpi=80)
+    plt.close(fig)
+
+
+def run_recover(args: argparse.Namespace) -> int:
+    from . import DirectionalLight, write_exr
+    from ._inverse.sequence import frame_paths, load_frames, recover_sequence
+    from ._io import write_png
+
     try:
-        factors = [int(v) for v in args.levels.split(",")]
+        factors = tuple(int(v) for v in args.levels.split(","))
     except ValueError as err:
         raise ValueError(f"`--levels` must be integers such as 4,2,1, got {args.levels!r}") from err
     if factors[-1] != 1 or any(a <= b for a, b in zip(factors, factors[1:], strict=False)):
         raise ValueError(f"`--levels` must decrease strictly to 1, got {args.levels!r}")
+    if args.heights is not None and args.heights < 2:
+        raise ValueError(f"`--heights` must be >= 2, got {args.heights}")
     extent = (0.0, args.size[0], 0.0, args.size[1])
     light = DirectionalLight.from_angles(args.zenith, args.azimuth)
-    shape = (args.heights, args.heights)
     truth = None
-    if args.target is None:  # a built-in sea: render its caustic, then recover it
-        truth = np.asarray(
-            wave_heights(
-                shape,
-                extent,
-                amplitude=0.002,
-                depth=args.depth,
-                wavelength_range=(0.3, 1.0),
-                num_waves=8,
-                seed=3,
-            )
-        )
-        scene = WaterScene(
-            HeightField(truth, extent),
-            light,
-            PlaneReceiver(extent, (2 * shape[0], 2 * shape[1])),
-            args.depth,
-            ior=args.ior,
-        )
-        target = np.asarray(two_pass(scene, samples_x="auto", channels_y="auto").image)
+    if not args.target:
+        truth, built_in = _built_in_sea(args, extent, light)
+        frames: list = [built_in]
+    elif len(args.target) == 1 and Path(args.target[0]).is_dir():
+        frames = frame_paths(args.target[0])
     else:
-        target = np.asarray(read_image(args.target), float)
-        if target.ndim == 3:
-            target = target[..., :3].mean(axis=-1)
-        target = target / target.mean()
+        frames = [Path(t) for t in args.target]
+    if not (math.isfinite(args.gamma) and args.gamma > 0):
+        raise ValueError(f"`--gamma` must be a positive number, got {args.gamma}")
+    targets = load_frames(frames, args.ior)  # read and checked once, scaled to unit mean
+    if args.gamma != 1 and args.target:
+        targets = [t**args.gamma / np.mean(t**args.gamma) for t in targets]
     out = args.output
     out.mkdir(parents=True, exist_ok=True)
-    common = dict(
+    checkpoint = out / "recover.ckpt.npz"
+    if args.resume and not checkpoint.is_file():
+        print(f"--resume: no checkpoint at {checkpoint}: starting from the first frame")
+    shape = None if args.heights is None else (args.heights, args.heights)
+    start = time.perf_counter()
+    result = recover_sequence(
+        targets,
+        checkpoint=checkpoint,
+        resume=args.resume,
         extent=extent,
         rest_depth=args.depth,
         light=light,
         ior=args.ior,
-        solver=args.solver,
+        boundary=args.boundary,
+        blur=args.blur,
+        heights_shape=shape,
+        solver=None if args.solver == "none" else args.solver,
+        coarse_to_fine=factors,
         max_steps=args.steps,
         throw=False,
     )
-    results: dict[int, object] = {}
-
-    def level_round(k: int):
-        def run(state):
-            level_shape = tuple(max(4, s // factors[k]) for s in shape)
-            result = recover_surface(
-                target,
-                heights_shape=level_shape,
-                initial=None if k == 0 else np.asarray(state["heights"]),
-                **common,
-            )
-            results[k] = result
-            fine = resample_heights(result.heights, extent, shape)
-            return {"heights": jnp.asarray(fine), "loss": jnp.asarray(result.loss)}
-
-        return run
-
-    start = time.perf_counter()
-    code = _run_levels(
-        [level_round(k) for k in range(len(factors))], shape, out, "recover", args.resume
-    )
-    if code is not None or len(factors) - 1 not in results:
-        return code or 0
-    result = results[len(factors) - 1]
-    heights = np.asarray(result.heights)
-    write_exr(out / "heights.exr", heights)
-    write_png(out / "recovered_caustic.png", result.image)
-    write_png(out / "target.png", target)
+    if result.interrupted:
+        print(f"interrupted after {result.done} of {len(frames)} frames; rerun with --resume")
+        return 130
+    single = len(frames) == 1
+    for k in range(len(frames)):
+        tag = "" if single else f"_{k:04d}"
+        write_exr(out / f"heights{tag}.exr", result.heights[k])
+        write_png(out / f"recovered_caustic{tag}.png", result.images[k])
+        write_png(out / f"target{tag}.png", targets[k])
+        _write_residual(out / f"residual{tag}.png", result.images[k] - targets[k])
     summary = {
         "seconds": time.perf_counter() - start,
-        "loss": float(result.loss),
-        "image_error": float(result.image_error),
+        "frames": len(frames),
         "solver": args.solver,
-        "levels": factors,
+        "image_error": result.image_error.tolist(),
+        "misfit": result.misfit.tolist(),
+        "warm": result.warm.tolist(),
+        "seconds_per_frame": result.seconds.tolist(),
     }
     if truth is not None:
         t = truth - truth.mean()
-        summary["height_error"] = float(np.linalg.norm(heights - t) / np.linalg.norm(t))
+        summary["height_error"] = float(np.linalg.norm(result.heights[0] - t) / np.linalg.norm(t))
     (out / "summary.json").write_text(json.dumps(summary, indent=2))
     for key, value in summary.items():
         print(f"{key}: {value}")
-    print(f"wrote {out}/ (heights.exr, recovered_caustic.png, target.png, summary.json)")
+    names = "heights, recovered_caustic, target, residual" + ("" if single else " per frame")
+    print(f"wrote {out}/ ({names}; summary.json)")
     return 0

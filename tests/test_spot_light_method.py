@@ -31,7 +31,12 @@ def relative_l1(image, ref, blur_px=1.0):
 def test_render_dispatches_and_checks_the_scene():
     scene = sphere_scene(shape=(8, 8))
     lights = jc.SpotLights(
-        [[0.0, 0.0, 1.0]], [[0.0, 0.0, -1.0]], [[1.0, 0.0, 0.0]], [0.5], [0.0], [0.3],
+        [[0.0, 0.0, 1.0]],
+        [[0.0, 0.0, -1.0]],
+        [[1.0, 0.0, 0.0]],
+        [0.5],
+        [0.0],
+        [0.3],
         np.ones((1, 8, 8)),
     )
     image, stats = jc.render(scene, lights=lights, samples=1, return_stats=True)

@@ -75,7 +75,7 @@ def frame_paths(folder: str | os.PathLike) -> list[Path]:
     return paths
 
 
-def _load_frames(frames, ior) -> list[np.ndarray]:
+def load_frames(frames, ior) -> list[np.ndarray]:
     """Every frame read and checked (`_load_target`) before any is recovered; files
     are scaled to unit mean (their scale is arbitrary)."""
     if isinstance(frames, (str, os.PathLike)):
@@ -142,7 +142,7 @@ def recover_sequence(
     if callback is not None and not callable(callback):
         raise ValueError(f"`callback` must be callable or None, got {type(callback).__name__}")
     ior = _check_ior(options.get("ior", 1.333))
-    images = _load_frames(frames, ior)
+    images = load_frames(frames, ior)
     options = {**options, "normalize": False}  # files were scaled when read
     count = len(images)
     window: list[tuple[int, int]] = []
