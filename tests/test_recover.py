@@ -164,6 +164,13 @@ GOOD = dict(extent=EXT, rest_depth=DEPTH)
         (np.ones((8, 8)), {"initial": np.full((4, 4), np.inf)}, "initial"),
         (np.ones((8, 8)), {"boundary": "mirror"}, "boundary"),
         (np.ones((8, 8)), {"start": "flat"}, "start"),
+        (np.ones((8, 8)), {"blur": -1.0}, "blur"),
+        (np.ones((8, 8)), {"blur": 3.0}, "blur"),
+        (
+            np.ones((8, 8)),
+            {"boundary": "clamp", "receiver_extent": (3.0, 4.0, 0.0, 1.0)},
+            "receiver_extent",
+        ),
         (
             np.ones((8, 8)),
             {"start": "transport", "receiver_extent": (0.0, 2.0, 0.0, 1.0)},
@@ -183,6 +190,11 @@ def test_bad_inputs_raise_before_any_optimisation(target, kwargs, name, monkeypa
     kw = {**GOOD, "light": light(), **kwargs}
     with pytest.raises(ValueError, match=f"`{name}`"):
         recover_surface(target, **kw)
+
+
+def test_a_light_from_below_is_refused_where_it_is_made():
+    with pytest.raises(ValueError, match="`direction`.*point down"):
+        recover_surface(np.ones((8, 8)), **GOOD, light=jc.DirectionalLight((0.0, 0.1, 1.0)))
 
 
 def test_missing_target_file_raises():

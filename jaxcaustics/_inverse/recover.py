@@ -78,8 +78,8 @@ from .._scene import (
     _check_positive_scalar,
 )
 from .._surface import height_and_gradient
+from .water_start import flat_shift, transport_start
 from .water_start import sum_squares as _sum_squares
-from .water_start import transport_start
 
 SOLVERS = ("levenberg_marquardt", "gauss_newton", "bfgs", "adam")
 WINDOW_MARGIN = 1  # pixels added on each side of the automatic window
@@ -565,6 +565,21 @@ def recover_surface(
             "`start='transport'` needs the target to cover the heights' `extent`: "
             f"`receiver_extent` {rec_ext.tolist()} differs from it (pass start='ripple')"
         )
+    if boundary == "clamp" and not covers:
+        # beyond its extent a clamped surface is flat: a caustic cast by the extent
+        # (shifted along the refracted light) must reach the receiver
+        s = flat_shift(np.asarray(light.direction, float), float(np.mean(iors)), depth)
+        if (
+            rec_ext[0] >= ext[1] + s[0]
+            or rec_ext[1] <= ext[0] + s[0]
+            or rec_ext[2] >= ext[3] + s[1]
+            or rec_ext[3] <= ext[2] + s[1]
+        ):
+            raise ValueError(
+                f"`receiver_extent` {rec_ext.tolist()} does not meet the light that the "
+                f"heights' extent refracts (it lands on {(ext + np.repeat(s, 2)).tolist()}): "
+                "the caustic there cannot depend on the heights"
+            )
     if start == "auto":
         start = "transport" if covers else "ripple"
     if solver is None and start == "ripple":
