@@ -37,8 +37,9 @@ def lettering(size: int = 128) -> np.ndarray:
 
     fig = Figure(figsize=(4, 4), dpi=128, facecolor="black")
     canvas = FigureCanvasAgg(fig)
-    fig.text(0.5, 0.62, "JAX", color="white", ha="center", va="center", fontsize=78,
-             fontweight="bold")
+    fig.text(
+        0.5, 0.62, "JAX", color="white", ha="center", va="center", fontsize=78, fontweight="bold"
+    )
     fig.text(0.5, 0.28, "caustics", color="white", ha="center", va="center", fontsize=44)
     canvas.draw()
     rgba = np.asarray(canvas.buffer_rgba(), float)[..., 0]

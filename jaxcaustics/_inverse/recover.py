@@ -78,6 +78,8 @@ from .._scene import (
     _check_positive_scalar,
 )
 from .._surface import height_and_gradient
+from .camera import camera_blur, deconvolve
+from .water_refine import FOLD_BLURS, refine_folds
 from .water_start import flat_shift, transport_start
 from .water_start import sum_squares as _sum_squares
 
@@ -90,11 +92,6 @@ MIN_WINDOW = (5, 4)  # the smallest automatic window
 # 0.033 and 0.061 on folded seas whose heights came out 16% and 49% off)
 START_MISFIT = 0.02
 INITIAL_RIPPLE = 0.05  # scaled units: the random ripple of the default initial guess
-# Richardson-Lucy iterations that undo a camera blur before the transport start
-# (measured on a 128^2 reference caustic under 30-degree light, blurred by 1 pixel with
-# 2% noise: height error 2.3% without deconvolution, 1.1% after 10 iterations, 1.4%
-# after 30, which sharpen the noise)
-DECONVOLUTION_ITERATIONS = 10
 
 Solver = Literal["levenberg_marquardt", "gauss_newton", "bfgs", "adam"]
 
@@ -150,7 +147,8 @@ class RecoveryResult:
     - `time_s`: total wall time, compilation included.
     - `scene`: the `WaterScene` with the recovered surface (as solved, mean included).
     - `stages`: a report (dict) per stage of the transport start (``stage``: transport,
-      landing fit, irradiance fit; ``steps``, ``rms``, ``seconds``), empty without it.
+      landing fit, irradiance fit, then a fold fit per blur when it ran; ``steps``,
+      ``rms``, ``seconds``), empty without it.
     """
 
     heights: np.ndarray
@@ -185,59 +183,6 @@ class RecoveryResult:
     def messages(self) -> tuple[str, ...]:
         """Human-readable result per level (empty string: successful)."""
         return tuple(optx.RESULTS[r] for r in self.results)
-
-
-# ------------------------------------------------------------------ the camera
-
-
-def gaussian_taps(sigma: float) -> np.ndarray:
-    """The normalised 1-D Gaussian kernel of standard deviation `sigma` pixels, radius
-    ``ceil(3 sigma)``."""
-    radius = max(1, math.ceil(3.0 * sigma))
-    x = np.arange(-radius, radius + 1, dtype=float)
-    taps = np.exp(-0.5 * (x / sigma) ** 2)
-    return taps / taps.sum()
-
-
-def camera_blur(image: Array, sigma: float, boundary: str) -> Array:
-    """`image` ``(rows, cols[, channels])`` seen through a Gaussian PSF of `sigma`
-    pixels (standard deviation), wrapped round a periodic floor, edge-extended
-    otherwise: separable sums of shifted slices (differentiable, no gathers)."""
-    if sigma == 0:
-        return image
-    taps = gaussian_taps(sigma)
-    radius = len(taps) // 2
-    mode = "wrap" if boundary == "periodic" else "edge"
-    for axis in (0, 1):
-        pad = [(0, 0)] * image.ndim
-        pad[axis] = (radius, radius)
-        padded = jnp.pad(image, pad, mode=mode)
-        size = image.shape[axis]
-        image = sum(
-            float(w) * jax.lax.slice_in_dim(padded, k, k + size, axis=axis)
-            for k, w in enumerate(taps)
-        )
-    return image
-
-
-def deconvolve(target: np.ndarray, sigma: float, boundary: str) -> np.ndarray:
-    """`target` ``(rows, cols)`` with a Gaussian blur of `sigma` pixels undone by
-    `DECONVOLUTION_ITERATIONS` of Richardson-Lucy (scikit-image's, a maintained
-    implementation; non-negative by construction), padded like `camera_blur`."""
-    from skimage.restoration import richardson_lucy
-
-    if sigma == 0:
-        return target
-    taps = gaussian_taps(sigma)
-    # scikit-image convolves with zeros outside: a band of 4 kernel radii keeps that
-    # edge away (with 1 radius, the recovered heights were 13% off instead of 1.1%)
-    pad = 4 * (len(taps) // 2)
-    scale = float(target.max())
-    padded = np.pad(target / scale, pad, mode="wrap" if boundary == "periodic" else "edge")
-    sharp = richardson_lucy(
-        padded, np.outer(taps, taps), num_iter=DECONVOLUTION_ITERATIONS, clip=False
-    )
-    return sharp[pad:-pad, pad:-pad] * scale
 
 
 # ------------------------------------------------------------------ the problem
@@ -475,6 +420,7 @@ def recover_surface(
     hit_iterations: int = 3,
     supersample: int = 1,
     blur: float = 0.0,
+    fold_fit: bool | None = None,
     normalize: bool | None = None,
     cg_steps: int = 30,
     learning_rate: float = 0.05,
@@ -523,6 +469,11 @@ def recover_surface(
       pixels (0: none). The transport start works on the target deconvolved by
       Richardson-Lucy (`deconvolve`); the image-space solve blurs its rendered caustic
       instead (`camera_blur`), and so does the result's `image`.
+    - `fold_fit`: after the transport start, fit the images of the exact rays to the
+      target, blurred coarse to fine (`jaxcaustics._inverse.water_refine`: follows
+      folds, where rays cross; measured at 32^2 on 2 cores: about 50-80 s in all).
+      None (default): when the start's irradiance misfit exceeds `START_MISFIT` (the
+      caustic folds) and no `solver` is named.
     - `normalize`: scale the target so its mean is 1 (the mean irradiance of flat
       water); default: True for a file path (whose scale is arbitrary), False for an
       array.
@@ -622,6 +573,8 @@ def recover_surface(
             raise ValueError(f"`channels_y` must be an even int >= 0, got {channels_y!r}")
     elif channels_y is not None:
         raise ValueError("`channels_y` is chosen with samples_x='auto'; pass both as ints")
+    if fold_fit is not None and not isinstance(fold_fit, bool):
+        raise ValueError(f"`fold_fit` must be True, False or None, got {fold_fit!r}")
     if callback is not None and not callable(callback):
         raise ValueError(f"`callback` must be callable or None, got {type(callback).__name__}")
     dtype = jnp.result_type(float)
@@ -665,16 +618,36 @@ def recover_surface(
             boundary=boundary,
             initial=warm,
         )
-        u = resample_heights(jnp.asarray(found / height_scale, dtype), ext, shape, boundary)
         misfit = stages[-1]["rms"]
-        if solver is None and misfit > START_MISFIT:
+        folds = misfit > START_MISFIT
+        if fold_fit or (fold_fit is None and folds and solver is None):
+            found, fold_stages = refine_folds(
+                target_arr if target_arr.ndim == 2 else target_arr.mean(axis=2),
+                found,
+                extent=ext,
+                rest_depth=depth,
+                direction=np.asarray(light.direction, float),
+                ior=float(np.mean(iors)),
+                boundary=boundary,
+                camera_blur_px=blur,
+            )
+            stages = [*stages, *fold_stages]
+        if folds and solver is None:
+            done = (
+                f"; the fold fit matched the images to {stages[-1]['rms']:.3g} (RMS per "
+                f"pixel after a {FOLD_BLURS[-1]}-pixel blur), but the heights of a folding "
+                f"sea are not unique (measured on a sea with peak irradiance 15x the mean: "
+                f"its caustic 2% off the target, its heights 48% off the truth)"
+                if len(stages) > 3
+                else "; pass fold_fit=True to fit the folds"
+            )
             warnings.warn(
                 f"recover_surface: the transport start explains the target only to "
                 f"{misfit:.3g} (RMS of log irradiance per cell, above {START_MISFIT}): the "
-                f"caustic may fold (rays cross), which this start cannot follow; name a "
-                f"`solver` to refine in image space",
+                f"caustic folds (rays cross), which the start cannot follow{done}",
                 stacklevel=2,
             )
+        u = resample_heights(jnp.asarray(found / height_scale, dtype), ext, shape, boundary)
     elif initial is None:
         # Flat water plus a tiny deterministic ripple: at exactly flat water every
         # two-pass sample sits on a kink of its splat kernel, where the renderer is not

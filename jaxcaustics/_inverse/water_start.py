@@ -152,13 +152,20 @@ class Preconditioned(eqx.Module):
     mean is held at zero (the rest depth is flat water's): under oblique light a higher
     sea lands its light farther along the light, so a raised and shifted surface casts
     the same caustic, and the fit drifted along that valley (measured under 30-degree
-    light, from the true surface: height error 0.5% after one step, 2.3% after six)."""
+    light, from the true surface: height error 0.5% after one step, 2.3% after six).
+    So is the checkerboard (the Nyquist mode of both axes, where both are even): the
+    cell corners' slopes do not see it, and it grew without bound (measured at 16^2 on a
+    smooth sea: heights 0.76 m of checkerboard, 100x the truth, with the landing points
+    fitted to 0.02 pixels)."""
 
     residual: eqx.Module  # heights -> residual (a pytree of arrays)
     root: jax.Array  # (rows, cols)
 
     def heights(self, u):
+        rows, cols = u.shape
         coef = (jnp.fft.fft2(u) / self.root).at[0, 0].set(0.0)
+        if rows % 2 == 0 and cols % 2 == 0:
+            coef = coef.at[rows // 2, cols // 2].set(0.0)
         return jnp.real(jnp.fft.ifft2(coef)).astype(u.dtype)
 
     def variable(self, h):
@@ -333,6 +340,25 @@ def gauss_newton(problem: Preconditioned, h0, steps: int, rtol: float, cg_steps:
     return problem.heights(u), report
 
 
+def ray_map(extent, shape, direction, rest_depth: float, ior: float, boundary: str) -> RayMap:
+    """The `RayMap` of the cell corners of a ``shape`` pixel grid over `extent`."""
+    dtype = jnp.result_type(float)
+    rows, cols = shape
+    x0, x1, y0, y1 = (float(v) for v in extent)
+    pixel = np.array([(x1 - x0) / cols, (y1 - y0) / rows])
+    jj, ii = np.meshgrid(np.arange(cols + 1), np.arange(rows + 1))
+    return RayMap(
+        jnp.asarray(x0 + jj * pixel[0], dtype),
+        jnp.asarray(y0 + ii * pixel[1], dtype),
+        jnp.asarray(np.asarray(direction, float) / np.linalg.norm(direction), dtype),
+        jnp.asarray(rest_depth, dtype),
+        jnp.asarray([x0, x1, y0, y1], dtype),
+        jnp.asarray(pixel, dtype),
+        1.0 / ior,
+        boundary,
+    )
+
+
 def transport_start(
     target: np.ndarray,
     *,
@@ -361,16 +387,7 @@ def transport_start(
     pixel = np.array([(x1 - x0) / cols, (y1 - y0) / rows])
     shift = flat_shift(direction, ior, rest_depth)
     jj, ii = np.meshgrid(np.arange(cols + 1), np.arange(rows + 1))
-    rays = RayMap(
-        jnp.asarray(x0 + jj * pixel[0], dtype),
-        jnp.asarray(y0 + ii * pixel[1], dtype),
-        jnp.asarray(np.asarray(direction, float) / np.linalg.norm(direction), dtype),
-        jnp.asarray(rest_depth, dtype),
-        jnp.asarray([x0, x1, y0, y1], dtype),
-        jnp.asarray(pixel, dtype),
-        1.0 / ior,
-        boundary,
-    )
+    rays = ray_map(extent, (rows, cols), direction, rest_depth, ior, boundary)
     stages: list[dict] = []
     fits = (("irradiance fit", (0.0, 1.0), 2, rows * cols),)
     if initial is None:
