@@ -193,3 +193,15 @@ def test_a_blurred_noisy_caustic_is_recovered_with_the_blur_given(sea):
     assert error < 0.05, error
     # the result's image is seen through the same blur
     assert jc.image_error(r.image, photo, blur=0.0) < 0.05
+
+
+def test_the_results_window_comes_from_the_transports_reach():
+    """After the start alone the result's two-pass window is the transport's reach plus
+    half a pixel (no `auto_window` trace); a warm start or a fold fit asks for "auto"."""
+    from jaxcaustics._inverse.recover import _result_window
+
+    start = [{"stage": "transport", "reach": (3.05, 3.44)}, {}, {}]
+    assert _result_window((), start, "auto", None) == (9, 8)
+    assert _result_window((), start, 7, 6) == (7, 6)
+    assert _result_window((), [{"stage": "irradiance fit"}], "auto", None) == ("auto", "auto")
+    assert _result_window((), [*start, {"stage": "fold fit"}], "auto", None) == ("auto", "auto")

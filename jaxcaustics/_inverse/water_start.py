@@ -409,6 +409,14 @@ def transport_start(
         goal_x, goal_y = _landing_goal(
             jnp.asarray(dx, dtype), jnp.asarray(dy, dtype), px, py, shift / pixel, boundary
         )
+        # the largest landing displacement asked for (pixels): the two-pass window of
+        # the result, without a trace of its own
+        # (the two-pass measures landing points from flat water's, hence less the shift)
+        flat = shift / pixel
+        stages[-1]["reach"] = (
+            float(jnp.max(jnp.abs(goal_x - flat[0]))),
+            float(jnp.max(jnp.abs(goal_y - flat[1]))),
+        )
         h = jnp.zeros((rows, cols), dtype)
         fits = (("landing fit", (1.0, 0.0), 1, 2 * (rows + 1) * (cols + 1)),) + fits
     else:  # no landing goals: the irradiance fit alone
