@@ -626,33 +626,23 @@ def recover_surface(
     target_j = jnp.asarray(target_arr, dtype)
     stages: list[dict] = []
     if start == "transport":
-        gray = target_arr if target_arr.ndim == 2 else target_arr.mean(axis=2)
-        gray = deconvolve(gray, blur, boundary)
+        seen = target_arr if target_arr.ndim == 2 else target_arr.mean(axis=2)
+        gray = deconvolve(seen, blur, boundary)
         warm = None
         if initial is not None:  # a warm start: the irradiance fit alone, from `initial`
             warm = np.asarray(resample_heights(init_arr, ext, gray.shape, boundary), float)
-        found, stages = transport_start(
-            gray,
+        geometry = dict(
             extent=ext,
             rest_depth=depth,
             direction=np.asarray(light.direction, float),
             ior=float(np.mean(iors)),
             boundary=boundary,
-            initial=warm,
         )
+        found, stages = transport_start(gray, **geometry, initial=warm)
         misfit = stages[-1]["rms"]
         folds = misfit > START_MISFIT
         if fold_fit or (fold_fit is None and folds and solver is None):
-            found, fold_stages = refine_folds(
-                target_arr if target_arr.ndim == 2 else target_arr.mean(axis=2),
-                found,
-                extent=ext,
-                rest_depth=depth,
-                direction=np.asarray(light.direction, float),
-                ior=float(np.mean(iors)),
-                boundary=boundary,
-                camera_blur_px=blur,
-            )
+            found, fold_stages = refine_folds(seen, found, **geometry, camera_blur_px=blur)
             stages = [*stages, *fold_stages]
         if folds and solver is None:
             done = (
