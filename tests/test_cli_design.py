@@ -95,7 +95,9 @@ def test_recover_without_target_recovers_the_built_in_sea(tmp_path):
         assert (out / name).is_file()
 
 
-@pytest.mark.slow  # 36 s, for the default run's budget: test_sequence.py runs the same frames
+# 36 s, slow for the default run's budget: `recover_sequence` stays in test_sequence.py and
+# the CLI's recover in the test above; reading frames from a folder runs with -m slow
+@pytest.mark.slow
 def test_recover_takes_a_folder_of_frames(tmp_path):
     """Two PNG frames (the built-in sea, moved) in a folder: one result per frame, the
     second warm-started."""

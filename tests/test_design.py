@@ -495,7 +495,9 @@ def test_a_ring_wider_than_the_bevel_can_take_warns():
     assert np.all(keep[:, -9:] == 0.0) and np.all(keep[:, :-10] == 1.0)
 
 
-@pytest.mark.slow  # 42 s, for the default run's budget: the bevel's own test stays
+# 42 s, slow for the default run's budget: the bevel's own test stays in it; the
+# leaning-light design end to end, judged by the reference, runs with -m slow
+@pytest.mark.slow
 def test_point_light_design_bevels_its_edges_and_matches_by_the_reference():
     """The leaning-light path end to end: a short first pass, the bevel, the second
     transport and fit, judged by the reference (measured: relative L2 0.073, 1.2% of

@@ -183,7 +183,9 @@ def test_auto_window_is_the_same_in_bands():
     np.testing.assert_allclose(banded.image, whole.image, rtol=0, atol=1e-12 * scale)
 
 
-@pytest.mark.slow  # 16 s, for the default run's budget: the memory limit's test stays
+# 16 s, slow for the default run's budget: the batched run under the memory limit stays
+# in it; this equality of batched and single images runs with -m slow
+@pytest.mark.slow
 def test_caustics_mapping_batches_equal_one_batch():
     scene = ball_scene()
     knobs = dict(photons=48, map_resolution=32, gbuffer_resolution=48)

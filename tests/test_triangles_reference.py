@@ -77,7 +77,6 @@ def test_gouraud_triangles_agree_with_reference():
 # reference, whose own error is of the same size (its 512^2-photon image differs from it
 # by 0.0037). The missing 0.3% of flux is in triangles at the rim that span the
 # silhouette (one photon in, one out: dropped) and beyond the automatic window.
-@pytest.mark.slow  # 28 s, for the default run's budget: the smooth lens and point-light scenes stay
 def test_triangles_agree_with_reference_on_a_glass_sphere():
     ref = sphere_reference()
     scene = sphere_scene(shape=(64, 64))

@@ -77,7 +77,6 @@ def test_agrees_with_reference_on_smooth_surfaces(surface, tolerance, zenith):
     assert rel_l1(jc.render(scene), ref) < tolerance
 
 
-@pytest.mark.slow  # 18 s, for the default run's budget: the reference comparisons stay
 def test_supersampling_tightens_the_error():
     """S x S samples per pixel remove the one-sample-per-pixel ripple.
 
