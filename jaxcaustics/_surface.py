@@ -212,6 +212,51 @@ def sample_grid(field: Array, px: Array, py: Array, boundary: str = "clamp") -> 
     return height_and_gradient(surface, px, py)[0]
 
 
+def _windows(texture: Array, row: Array, col: Array, size: int) -> Array:
+    """The ``size x size`` blocks of `texture` ``(rows, cols, ...)`` whose first texel is
+    ``(row, col)`` (integer arrays of one shape; a block that would reach past an edge
+    is moved inside, as `jax.lax.dynamic_slice` does): ``row.shape + (size, size, ...)``.
+    One gather for the whole block (one scatter in the gradient), not one per texel."""
+    block = (size, size) + texture.shape[2:]
+    zeros = (jnp.zeros((), row.dtype),) * (texture.ndim - 2)
+    one = jax.vmap(lambda r, c: jax.lax.dynamic_slice(texture, (r, c) + zeros, block))
+    return one(row.ravel(), col.ravel()).reshape(row.shape + block)
+
+
+def bilinear(texture: Array, x: Array, y: Array, mask: Array | None = None):
+    """Sample `texture` ``(rows, cols, ...)`` bilinearly at texel coordinates ``(x, y)``
+    (columns, rows; texel centres at ``+ 0.5``), clamped to the edge.
+
+    With a `mask` ``(rows, cols)``, only texels inside it are blended (weights
+    renormalised) and the coverage (the bilinear weight of the mask) is returned too:
+    ``(value, coverage)``.
+    """
+    fx, fy = x - 0.5, y - 0.5
+    ix, iy = jnp.floor(jax.lax.stop_gradient(fx)), jnp.floor(jax.lax.stop_gradient(fy))
+    tx, ty = fx - ix, fy - iy
+    # the texture with its edge texels repeated once round it: a 2 x 2 block moved inside
+    # reads the edge texel twice, which is the clamped tap
+    edge = ((1, 1), (1, 1))
+    row, col = iy.astype(jnp.int32) + 1, ix.astype(jnp.int32) + 1
+    extra = (None,) * (texture.ndim - 2)
+    pad = edge + ((0, 0),) * (texture.ndim - 2)
+    values = _windows(jnp.pad(texture, pad, mode="edge"), row, col, 2)
+    weights = (
+        jnp.stack([1.0 - ty, ty], -1)[..., :, None] * jnp.stack([1.0 - tx, tx], -1)[..., None, :]
+    )
+    if mask is not None:
+        inside = _windows(jnp.pad(mask, edge, mode="edge"), row, col, 2)
+        weights = jnp.where(inside, weights, 0.0)
+        coverage = weights[..., 0, 0] + weights[..., 0, 1] + weights[..., 1, 0] + weights[..., 1, 1]
+        weights = weights / jnp.where(coverage > 0, coverage, 1.0)[..., None, None]
+    value = sum(
+        weights[..., a, b][(...,) + extra] * values[(Ellipsis, a, b) + (slice(None),) * len(extra)]
+        for a in range(2)
+        for b in range(2)
+    )
+    return value if mask is None else (value, coverage)
+
+
 def _ray_slope(hx: Array, hy: Array, d: Array) -> Array:
     """``g'(t)`` of ``g(t) = t d_z - H(c + t d_xy)``, kept below ``d_z / 4 < 0`` so that
     grazing rays over steep waves (several intersections) still take finite steps."""

@@ -47,6 +47,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from ._surface import bilinear
+
 _ARMIJO = (0.95, 0.25, 0.75)  # step scale factor, lower and upper Armijo-Goldstein bounds
 _PATIENCE = 8  # iterations without improvement that count as a stall
 # no stall before this many iterations: the first ones can raise the misfit while the
@@ -99,24 +101,6 @@ def legendre(f: jax.Array, h, ghost: int = 0) -> jax.Array:
     batch = max(1, min(g.shape[1], 2**23 // max(rows * (rows + 2 * ghost), 1)))
     out = _legendre_1d(-g.T, _axis(rows, h, 0, f.dtype), _axis(rows, h, ghost, f.dtype), batch)
     return out.T
-
-
-def bilinear(image: jax.Array, px: jax.Array, py: jax.Array) -> jax.Array:
-    """Bilinear interpolation of `image` at pixel coordinates (the centre of pixel
-    ``(i, j)`` at ``(j + 0.5, i + 0.5)``), edge values extended outwards, gathered
-    from the flattened image."""
-    rows, cols = image.shape
-    u = jnp.clip(px - 0.5, 0.0, cols - 1.0)
-    v = jnp.clip(py - 0.5, 0.0, rows - 1.0)
-    j0 = jnp.clip(jnp.floor(u), 0, max(cols - 2, 0)).astype(jnp.int32)
-    i0 = jnp.clip(jnp.floor(v), 0, max(rows - 2, 0)).astype(jnp.int32)
-    step_x, step_y = min(1, cols - 1), cols * min(1, rows - 1)
-    fu, fv = u - j0, v - i0
-    flat = image.ravel()
-    k = i0 * cols + j0
-    top = (1 - fu) * flat[k] + fu * flat[k + step_x]
-    bottom = (1 - fu) * flat[k + step_y] + fu * flat[k + step_y + step_x]
-    return (1 - fv) * top + fv * bottom
 
 
 def pushforward(potential: jax.Array, density: jax.Array, h, samples: int = 3):

@@ -83,7 +83,7 @@ from .._surface import (
     ray_surface_hit,
     sample_grid,
 )
-from .._transport import bilinear as _bilinear
+from .._surface import bilinear as _bilinear
 from .._transport import neumann_poisson as _neumann_poisson
 from .recover import _laplacian as _five_point
 from .recover import check_irradiance, resample_heights
