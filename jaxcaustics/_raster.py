@@ -31,6 +31,8 @@ import numpy as np
 from jax.sharding import PartitionSpec
 from jaxtyping import Array, Bool, Float
 
+from ._checks import check_int
+
 
 def _float_dtype(*arrays) -> jnp.dtype:
     dtype = jnp.result_type(*arrays)
@@ -500,13 +502,6 @@ def _scan_sum(fn, xs):
 
 
 DEFAULT_MEMORY_LIMIT = 1 << 30  # bytes: the photon renderers' default buffer budget (1 GiB)
-
-
-def check_int(value, name: str, low: int) -> int:
-    """`value` as an int, or a `ValueError` naming `name` unless it is an int >= `low`."""
-    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < low:
-        raise ValueError(f"`{name}` must be an int >= {low}, got {value!r}")
-    return int(value)
 
 
 def check_memory_limit(memory_limit) -> int:

@@ -72,9 +72,9 @@ import lineax as lx
 import numpy as np
 import optimistix as optx
 
+from .._checks import check_int
 from .._optics import refract_components
 from .._photons import _grid
-from .._raster import check_int
 from .._scene import DirectionalLight, HeightField, LensScene, PlaneReceiver, PointLight
 from .._surface import (
     _PAD_LOW,

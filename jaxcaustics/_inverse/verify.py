@@ -15,8 +15,8 @@ import math
 
 import numpy as np
 
+from .._checks import check_int
 from .._mesh import Mesh, MeshScene
-from .._raster import check_int
 from .._scene import DirectionalLight, LensScene, PlaneReceiver
 
 SUN_DIAMETER_DEG = 0.53

@@ -36,6 +36,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array
 
+from .._checks import check_int
 from .._gbuffer import (
     INTERSECTIONS,
     GeometryBuffers,
@@ -47,7 +48,6 @@ from .._gbuffer import (
 from .._light_view import LightView, light_view
 from .._mesh import MeshScene
 from .._raster import (
-    check_int,
     check_memory_limit,
     splat_gaussian,
     sum_over_batches,

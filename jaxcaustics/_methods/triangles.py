@@ -34,10 +34,10 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Bool, Float
 
+from .._checks import check_int
 from .._mesh import MeshScene
 from .._photons import Photons, lens_photons, mesh_photons
 from .._raster import (
-    check_int,
     check_memory_limit,
     pixel_coordinates,
     rasterize_exact,

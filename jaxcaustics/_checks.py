@@ -1,0 +1,91 @@
+"""Argument checks shared by the whole package: one rule for every public argument.
+
+Every public function checks its arguments for type, finiteness, sign, range and
+consistency before anything is compiled or traced, and refuses bad values with a
+`ValueError` (a wrong kind of object: `TypeError` where the function documents it)
+whose message names the argument. The checks here are the shared ones:
+
+- `check_int`: a whole number (``bool``, floats and strings refused) within a range;
+- `check_number`: a finite real number (``bool`` and strings refused) within a range;
+- `check_choice`: one of a fixed set of strings;
+- `check_bool`: ``True`` or ``False`` (not ``"yes"``, ``0.5`` or an array).
+
+Values that exist only under a JAX transformation (tracers) are checked where the
+methods start rendering (`jaxcaustics._scene_checks`), with `equinox.error_if`.
+
+This module imports nothing of the package, so every module can use it.
+"""
+
+from __future__ import annotations
+
+import math
+import numbers
+
+import numpy as np
+
+
+def check_int(value, name: str, low: int = 1, high: int | None = None) -> int:
+    """`value` as an int, or a `ValueError` naming `name` unless it is an int in
+    ``[low, high]`` (``high=None``: no upper bound). Floats (``2.0`` included), bools and
+    strings are refused."""
+    whole = isinstance(value, (int, np.integer)) and not isinstance(value, (bool, np.bool_))
+    if not whole or value < low or (high is not None and value > high):
+        bound = f">= {low}" if high is None else f"in [{low}, {high}]"
+        raise ValueError(f"`{name}` must be an int {bound}, got {value!r}")
+    return int(value)
+
+
+def check_number(
+    value,
+    name: str,
+    *,
+    low: float = -math.inf,
+    high: float = math.inf,
+    low_open: bool = False,
+    high_open: bool = False,
+    unit: str = "",
+) -> float:
+    """`value` as a finite float, or a `ValueError` naming `name` unless it is a real
+    number (a Python or NumPy scalar, or a 0-d array) within ``[low, high]`` (an open end
+    with `low_open` / `high_open`). Bools, strings and complex numbers are refused.
+    `unit` (e.g. ``"metres"``) is named in the message."""
+    if isinstance(value, np.ndarray) and value.shape == ():
+        value = value[()]
+    if (
+        hasattr(value, "shape") and getattr(value, "shape", None) == () and hasattr(value, "item")
+    ):  # a 0-d JAX array (concrete)
+        try:
+            value = value.item()
+        except Exception:  # noqa: BLE001 - a tracer: refused below with the name
+            pass
+    real = isinstance(value, numbers.Real) and not isinstance(value, (bool, np.bool_))
+    what = f"a finite number{f' ({unit})' if unit else ''}"
+    if not real:
+        raise ValueError(f"`{name}` must be {what}, got {value!r}")
+    v = float(value)
+    if not math.isfinite(v):
+        raise ValueError(f"`{name}` must be {what}, got {v}")
+    too_low = v < low or (low_open and v == low)
+    too_high = v > high or (high_open and v == high)
+    if too_low or too_high:
+        parts = []
+        if math.isfinite(low):
+            parts.append(f"{'>' if low_open else '>='} {low:g}")
+        if math.isfinite(high):
+            parts.append(f"{'<' if high_open else '<='} {high:g}")
+        raise ValueError(f"`{name}` must be {' and '.join(parts)}, got {v:g}")
+    return v
+
+
+def check_choice(value, name: str, choices) -> str:
+    """`value` if it is one of the strings `choices`, else a `ValueError` naming `name`."""
+    if not isinstance(value, str) or value not in choices:
+        raise ValueError(f"`{name}` must be one of {tuple(choices)}, got {value!r}")
+    return value
+
+
+def check_bool(value, name: str) -> bool:
+    """`value` if it is ``True`` or ``False`` (Python or NumPy), else a `ValueError`."""
+    if not isinstance(value, (bool, np.bool_)):
+        raise ValueError(f"`{name}` must be True or False, got {value!r}")
+    return bool(value)
