@@ -655,7 +655,7 @@ class _ImageRefine(eqx.Module):
 
         h = self.heights(u)
         scene = eqx.tree_at(lambda sc: sc.surface.heights, self.scene, h - jnp.max(h))
-        e = caustic_triangles(
+        e = caustic_triangles.unchecked(
             scene, photons=self.photons, window=self.window, memory_limit=_REFINE_MEMORY
         ).image
         return e / jnp.mean(e)

@@ -52,6 +52,7 @@ from .._raster import (
     splat_gaussian,
     sum_over_batches,
 )
+from .._scene_checks import checks_scene_values
 from .._sharding import device_mesh
 
 METRICS = ("traversal", "error")
@@ -252,6 +253,7 @@ def _dense_map(
     return cmap, images, missed, splatted
 
 
+@checks_scene_values
 def caustics_mapping(
     scene: MeshScene,
     *,
@@ -544,6 +546,7 @@ def _traverse_in_jit(scene, buffers, cfg: _AdaptiveConfig, capacity: int, batch:
     return cmap, total, tuple(jnp.stack(c) for c in counts) + (overflow,)
 
 
+@checks_scene_values
 def adaptive_caustic_map(
     scene: MeshScene,
     *,

@@ -22,6 +22,7 @@ from .._ellipsoid import EllipsoidScene, trace_exit_rays
 from .._mesh import MeshScene
 from .._raster import check_memory_limit
 from .._scene import DirectionalLight
+from .._scene_checks import checks_scene_values
 from .._spot_light_fit import FitInfo, fit_spot_lights
 from .._spot_lights import Glossy, Lambertian, SpotLights, render_spot_lights
 
@@ -85,6 +86,7 @@ def _check_scene(scene) -> None:
         raise ValueError("`scene.material` must be 'refractor' for caustic spot lights")
 
 
+@checks_scene_values
 def spot_lights(
     scene: EllipsoidScene | MeshScene,
     *,

@@ -48,6 +48,7 @@ from .._raster import (
     sum_over_batches,
 )
 from .._scene import LensScene, PlaneReceiver
+from .._scene_checks import checks_scene_values
 from .._sharding import device_mesh
 
 RECONSTRUCTIONS = ("exact", "gouraud")
@@ -523,6 +524,7 @@ def _banded_image(
     return _finish(images, total, extent, shape, reconstruction)
 
 
+@checks_scene_values
 def caustic_triangles(
     scene: LensScene | MeshScene,
     *,

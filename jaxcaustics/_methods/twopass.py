@@ -35,6 +35,7 @@ from jaxtyping import Array, Float
 
 from .._optics import fresnel_transmittance, refract, refract_components, tir_possible
 from .._scene import WaterScene
+from .._scene_checks import checks_scene_values
 from .._surface import ray_surface_hit
 
 # Largest automatic window (pixels on each side); beyond it the method is the wrong tool.
@@ -257,6 +258,7 @@ def auto_window(
     return 2 * half_x + 1, 2 * half_y
 
 
+@checks_scene_values
 def two_pass(
     scene: WaterScene,
     *,
