@@ -21,6 +21,8 @@ from __future__ import annotations
 import math
 import numbers
 
+import jax
+import jax.numpy as jnp
 import numpy as np
 
 
@@ -62,7 +64,10 @@ def check_number(
     what = f"a finite number{f' ({unit})' if unit else ''}"
     if not real:
         raise ValueError(f"`{name}` must be {what}, got {value!r}")
-    v = float(value)
+    try:
+        v = float(value)
+    except OverflowError:  # an int beyond float range
+        v = math.inf
     if not math.isfinite(v):
         raise ValueError(f"`{name}` must be {what}, got {v}")
     too_low = v < low or (low_open and v == low)
@@ -89,3 +94,65 @@ def check_bool(value, name: str) -> bool:
     if not isinstance(value, (bool, np.bool_)):
         raise ValueError(f"`{name}` must be True or False, got {value!r}")
     return bool(value)
+
+
+# Largest number of elements of a (rows, cols) grid that a builder allocates (2**28: a
+# GiB of float32); larger grids are refused before any work (see `check_shape`).
+MAX_GRID_ELEMENTS = 1 << 28
+
+
+def check_real_array(value, name: str) -> np.ndarray:
+    """`value` as a NumPy array of real numbers (its own int or float dtype), or a
+    `ValueError` naming `name`: strings, bools, complex numbers, ``None``, ragged
+    sequences and Python ints too large for an int64 are refused."""
+    try:
+        arr = np.asarray(value)
+    except Exception as err:  # noqa: BLE001 - ragged, traced: re-raised with the name
+        raise ValueError(f"`{name}` must be real numbers, got {type(value).__name__}") from err
+    if arr.dtype.kind not in "iuf":
+        shown = repr(value) if arr.size <= 8 else f"an array of shape {arr.shape}"
+        raise ValueError(f"`{name}` must be real numbers, got {shown} (dtype {arr.dtype})")
+    return arr
+
+
+def check_shape(value, name: str, low: int = 1, max_size: int = MAX_GRID_ELEMENTS):
+    """`value` as ``(rows, cols)``: two ints (no bools, floats or strings), each
+    ``>= low``, ``rows * cols <= max_size``; else a `ValueError` naming `name`."""
+    pair = isinstance(value, (list, tuple)) or (isinstance(value, np.ndarray) and value.ndim == 1)
+    if not pair or len(value) != 2:
+        raise ValueError(f"`{name}` must be (rows, cols), got {value!r}")
+    rows, cols = (check_int(v, name, low) for v in value)
+    if rows * cols > max_size:
+        raise ValueError(
+            f"`{name}` {(rows, cols)} has {rows * cols} elements, over the limit {max_size}"
+        )
+    return rows, cols
+
+
+def check_array(value, name: str, shape: tuple | None = None, *, finite: bool = True):
+    """`value` as a floating JAX array (ints are converted to the default float type), or
+    a `ValueError` naming `name`: strings, bools, complex numbers and ``None`` are
+    refused; `shape` is a pattern, ``None`` an axis of any length and a leading ``...``
+    any number of leading axes (``(None, 3)``: ``(P, 3)``; ``(..., 3)``: ``(..., 3)``);
+    with `finite` NaN and infinities are refused. A traced value (under `jax.jit`,
+    `jax.grad`, `jax.vmap`) is checked for its kind and shape only."""
+    if isinstance(value, jax.Array):  # concrete or traced
+        if value.dtype.kind not in "iuf":
+            raise ValueError(f"`{name}` must be real numbers, got dtype {value.dtype}")
+        arr = value
+    else:
+        arr = check_real_array(value, name)
+    if shape is not None:
+        fixed = shape[1:] if shape[:1] == (...,) else shape
+        lead = arr.ndim - len(fixed)
+        fits = (lead >= 0 if shape[:1] == (...,) else lead == 0) and all(
+            want is None or got == want for got, want in zip(arr.shape[lead:], fixed, strict=False)
+        )
+        if not fits:
+            pattern = ", ".join("..." if s is ... else "n" if s is None else str(s) for s in shape)
+            raise ValueError(f"`{name}` must have shape ({pattern}), got {tuple(arr.shape)}")
+    if finite and not isinstance(arr, jax.core.Tracer) and not np.all(np.isfinite(arr)):
+        raise ValueError(f"`{name}` must be finite, got NaN or infinite values")
+    if arr.dtype.kind != "f":
+        arr = arr.astype(jnp.result_type(float))
+    return jnp.asarray(arr)

@@ -26,6 +26,7 @@ from typing import Any
 
 import numpy as np
 
+from ._checks import check_choice, check_number, check_real_array
 from ._ellipsoid import EllipsoidScene
 from ._mesh import MeshScene
 from ._scene import DirectionalLight, LensScene, WaterScene
@@ -45,6 +46,8 @@ DEFAULT_MARGIN = 2.0
 #: relative distance of the ellipsoid through its principal extents, and that
 #: ellipsoid's longest axis is at most `SPHERE_LIKE_ASPECT` times its shortest
 SPHERE_LIKE_DEVIATION = 0.1
+#: the methods `render` knows (its ``METHODS``), in the order of `method_support`
+METHOD_NAMES = ("twopass", "triangles", "caustics_mapping", "adaptive", "spot_lights")
 SPHERE_LIKE_ASPECT = 3.0
 
 
@@ -106,14 +109,17 @@ def image_error(image, reference, blur: float = 1.0) -> float:
     """
     from scipy.ndimage import gaussian_filter
 
-    a, b = np.asarray(image, dtype=float), np.asarray(reference, dtype=float)
+    a = check_real_array(image, "image").astype(float)
+    b = check_real_array(reference, "reference").astype(float)
     if a.shape != b.shape or a.ndim not in (2, 3):
         raise ValueError(
             f"`image` {a.shape} and `reference` {b.shape} must have one shape (rows, cols"
             "[, channels])"
         )
-    if not (math.isfinite(blur) and blur >= 0):
-        raise ValueError(f"`blur` must be a number >= 0, got {blur!r}")
+    for name, array in (("image", a), ("reference", b)):
+        if not np.all(np.isfinite(array)):
+            raise ValueError(f"`{name}` contains NaN or infinite values")
+    blur = check_number(blur, "blur", low=0.0)
     sigma = (blur, blur, 0.0)[: a.ndim]
     ga = gaussian_filter(a, sigma, mode="constant")
     gb = gaussian_filter(b, sigma, mode="constant")
@@ -127,6 +133,8 @@ def reference_image(scene, **knobs) -> np.ndarray:
     """The NumPy reference's image of `scene`, float64: `reference.trace_water`,
     `trace_lens`, `trace_mesh` or `trace_ellipsoid` by the scene's kind, with `knobs`
     (``photons_per_axis``: per pixel side for water, across the object otherwise)."""
+    import inspect
+
     from . import reference
 
     tracer = {
@@ -135,6 +143,13 @@ def reference_image(scene, **knobs) -> np.ndarray:
         "mesh": reference.trace_mesh,
         "moving_light": reference.trace_ellipsoid,
     }[scene_kind(scene)]
+    names = set(inspect.signature(tracer).parameters) - {"scene", "return_stats"}
+    unknown = sorted(set(knobs) - names)
+    if unknown:
+        raise ValueError(
+            f"`{unknown[0]}` is not a knob of {tracer.__name__} (its knobs: "
+            f"{', '.join(sorted(names))})"
+        )
     return np.asarray(tracer(scene, **knobs))
 
 
@@ -211,7 +226,11 @@ def _sphere_like(vertices: np.ndarray) -> str | None:
 
 def method_support(method: str, scene) -> str | None:
     """``None`` if `method` can render everything `scene` calls for, else the reason it
-    cannot (an effect the method does not simulate, or a shape it cannot represent)."""
+    cannot (an effect the method does not simulate, or a shape it cannot represent).
+    `method`: one of ``"twopass"``, ``"triangles"``, ``"caustics_mapping"``,
+    ``"adaptive"``, ``"spot_lights"``; `scene`: a scene of a kind in `SCENE_KINDS`."""
+    check_choice(method, "method", METHOD_NAMES)
+    scene_kind(scene)
     fx = scene.effects
     if method == "twopass":
         if not isinstance(scene, WaterScene):
@@ -245,7 +264,6 @@ def method_support(method: str, scene) -> str | None:
         if aspect > SPHERE_LIKE_ASPECT:
             return f"the ellipsoid is elongated (aspect {aspect:.3g} > {SPHERE_LIKE_ASPECT:g})"
         return None
-    return f"unknown method {method!r}"
 
 
 def as_mesh_scene(scene: EllipsoidScene, subdivisions: int) -> MeshScene:
@@ -287,15 +305,10 @@ def resolve_knobs(
 
 
 def _check_tolerance(tolerance, margin) -> tuple[float, float]:
-    try:
-        t, m = float(tolerance), float(margin)
-    except (TypeError, ValueError) as err:
-        raise ValueError(f"`tolerance` and `margin` must be numbers, got {tolerance!r}") from err
-    if not (math.isfinite(t) and t > 0):
-        raise ValueError(f"`tolerance` must be a positive number, got {tolerance!r}")
-    if not (math.isfinite(m) and m >= 1):
-        raise ValueError(f"`margin` must be a number >= 1, got {margin!r}")
-    return t, m
+    return (
+        check_number(tolerance, "tolerance", low=0.0, low_open=True),
+        check_number(margin, "margin", low=1.0),
+    )
 
 
 def choose_method(
@@ -326,6 +339,12 @@ def choose_method(
     """
     tolerance, margin = _check_tolerance(tolerance, margin)
     kind = scene_kind(scene)
+    if method is not None:
+        check_choice(method, "method", METHOD_NAMES)
+    if table is not None and not isinstance(table, dict):
+        raise ValueError(
+            f"`table` must be a dict in the schema of accuracy_table(), got {type(table).__name__}"
+        )
     table = accuracy_table() if table is None else table
     if kind not in table.get("kinds", {}):
         raise ValueError(f"the accuracy table has no {kind!r} scenes; pass `method=` instead")

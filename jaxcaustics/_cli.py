@@ -22,10 +22,24 @@ from pathlib import Path
 
 import numpy as np
 
-from ._cli_inverse import _count, add_design, add_recover
+from ._cli_inverse import (
+    MAX_PIXELS,
+    _count,
+    add_design,
+    add_recover,
+    number,
+    output_folder,
+    with_flags,
+    zenith,
+)
 
 # Above this missed-flux fraction the image is visibly too dark: warn.
 MISSED_FLUX_WARNING = 0.01
+# the most frames, Newton steps and samples per pixel side `render water` takes (more
+# runs for hours: each frame is a render, each step and sample multiplies its work)
+MAX_FRAMES = 100_000
+MAX_HIT_ITERATIONS = 64
+MAX_SUPERSAMPLE = 16
 
 
 class CLIError(Exception):
@@ -46,6 +60,8 @@ def _size(text: str) -> tuple[int, int]:
         ) from None
     if cols < 2 or rows < 2:
         raise argparse.ArgumentTypeError(f"need at least 2x2 pixels, got {text!r}")
+    if rows * cols > MAX_PIXELS:
+        raise argparse.ArgumentTypeError(f"at most {MAX_PIXELS} pixels (4096x4096), got {text!r}")
     return rows, cols
 
 
@@ -61,30 +77,6 @@ def _extent(text: str) -> tuple[float, float]:
     if not (math.isfinite(width) and math.isfinite(height) and width > 0 and height > 0):
         raise argparse.ArgumentTypeError(f"width and height must be positive, got {text!r}")
     return width, height
-
-
-def _number(minimum: float | None = None, *, strict: bool = False) -> Callable[[str], float]:
-    def parse(text: str) -> float:
-        try:
-            value = float(text)
-        except ValueError:
-            raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
-        if not math.isfinite(value):
-            raise argparse.ArgumentTypeError(f"expected a finite number, got {text!r}")
-        if minimum is not None and (value <= minimum if strict else value < minimum):
-            raise argparse.ArgumentTypeError(
-                f"must be {'>' if strict else '>='} {minimum:g}, got {text!r}"
-            )
-        return value
-
-    return parse
-
-
-def _zenith(text: str) -> float:
-    value = _number(0.0)(text)
-    if value >= 90.0:
-        raise argparse.ArgumentTypeError(f"must be in [0, 90) degrees, got {text!r}")
-    return value
 
 
 def _window(parity: str) -> Callable[[str], int | str]:
@@ -171,14 +163,14 @@ def _add_render(subparsers) -> None:
     )
     g.add_argument(
         "--depth",
-        type=_number(0.0, strict=True),
+        type=number(0.0, strict=True),
         default=1.0,
         metavar="M",
         help="rest depth of the water above the ground, metres (default: %(default)s)",
     )
     g.add_argument(
         "--amplitude",
-        type=_number(0.0),
+        type=number(0.0),
         default=0.02,
         metavar="M",
         help="RMS wave height, metres (default: %(default)s)",
@@ -190,14 +182,14 @@ def _add_render(subparsers) -> None:
     g = water.add_argument_group("light and optics")
     g.add_argument(
         "--zenith",
-        type=_zenith,
+        type=zenith,
         default=20.0,
         metavar="DEG",
         help="angle of the light from vertical, degrees, in [0, 90) (default: %(default)s)",
     )
     g.add_argument(
         "--azimuth",
-        type=_number(),
+        type=number(),
         default=30.0,
         metavar="DEG",
         help="direction the light travels towards, degrees from +x towards +y "
@@ -238,7 +230,7 @@ def _add_render(subparsers) -> None:
     )
     g.add_argument(
         "--hit-iterations",
-        type=_count(0),
+        type=_count(0, MAX_HIT_ITERATIONS),
         default=3,
         metavar="K",
         help="Newton steps to find where each light ray meets the moving surface "
@@ -246,7 +238,7 @@ def _add_render(subparsers) -> None:
     )
     g.add_argument(
         "--supersample",
-        type=_count(1),
+        type=_count(1, MAX_SUPERSAMPLE),
         default=4,
         metavar="S",
         help="S x S samples per caustic-map pixel; 1 is the paper's method (fastest, with a "
@@ -257,28 +249,28 @@ def _add_render(subparsers) -> None:
     g = water.add_argument_group("animation and output")
     g.add_argument(
         "--frames",
-        type=_count(1),
+        type=_count(1, MAX_FRAMES),
         default=1,
         metavar="K",
         help="number of frames (default: %(default)s)",
     )
     g.add_argument(
         "--dt",
-        type=_number(),
+        type=number(),
         default=0.05,
         metavar="S",
         help="seconds of simulated time between frames (default: %(default)s)",
     )
     g.add_argument(
         "--start-time",
-        type=_number(),
+        type=number(),
         default=0.0,
         metavar="S",
         help="simulated time of the first frame, seconds (default: %(default)s)",
     )
     g.add_argument(
         "--exposure",
-        type=_number(0.0, strict=True),
+        type=number(0.0, strict=True),
         default=None,
         help="PNG scale factor before clipping to white (relative irradiance 1/EXPOSURE "
         "is white); default: chosen from the first frame (its 99.5th percentile) and kept "
@@ -292,7 +284,12 @@ def _add_render(subparsers) -> None:
         help="output directory, created if needed (default: %(default)s)",
     )
     g.add_argument("--quiet", action="store_true", help="print only warnings and errors")
-    water.set_defaults(func=_render_water)
+    water.set_defaults(
+        func=with_flags(
+            _render_water,
+            {name: f"--{name}" for name in ("depth", "amplitude", "extent", "ior", "exposure")},
+        )
+    )
 
 
 def _render_water(args: argparse.Namespace) -> int:
@@ -312,6 +309,17 @@ def _render_water(args: argparse.Namespace) -> int:
     hf_rows, hf_cols = args.heightfield_size or args.size
     say = (lambda *a, **k: None) if args.quiet else print
     times = [args.start_time + k * args.dt for k in range(args.frames)]
+    if not math.isfinite(times[-1]):
+        raise CLIError(f"`--dt` {args.dt:g}: the last frame's time {times[-1]} is not finite")
+    for flag, value, most in (
+        ("--samples-x", args.samples_x, 2 * cols + 1),
+        ("--channels-y", args.channels_y, 2 * rows),
+    ):
+        if value != "auto" and value > most:
+            raise CLIError(
+                f"`{flag}` {value} reaches past the {cols}x{rows} pixels ({most} already "
+                "reaches every pixel)"
+            )
 
     light = jc.DirectionalLight.from_angles(args.zenith, args.azimuth)
     receiver = jc.PlaneReceiver(extent, (rows, cols))
@@ -351,10 +359,7 @@ def _render_water(args: argparse.Namespace) -> int:
     else:
         say(f"  frames       {args.frames} at t = {times[0]:g} s + k * {args.dt:g} s")
 
-    try:
-        args.output.mkdir(parents=True, exist_ok=True)
-    except OSError as err:
-        raise CLIError(f"cannot create the output directory {str(args.output)!r}: {err}") from err
+    output_folder(args.output)
 
     # The window: 'auto' is the largest over all frames (cheap pre-pass per frame), so
     # that every frame uses the same N, M and the render compiles once.

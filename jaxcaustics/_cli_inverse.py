@@ -22,6 +22,10 @@ from pathlib import Path
 import numpy as np
 
 UNITS = {"mm": 1e-3, "cm": 1e-2, "m": 1.0}
+# most pixels of a design target, a recovered grid or a rendered map (4096^2)
+MAX_PIXELS = 1 << 24
+MAX_SIDE = 4096  # most pixels along a side (`--size` of design, `--heights`)
+MAX_BUILT_IN = 512  # most height samples per side of recover's built-in sea (traced first)
 
 
 def length(text: str) -> float:
@@ -31,13 +35,13 @@ def length(text: str) -> float:
     if not match:
         raise argparse.ArgumentTypeError(f"expected a length such as 100mm or 0.5m, got {text!r}")
     value = float(match.group(1)) * UNITS[match.group(2) or "mm"]
-    if not value > 0:
-        raise argparse.ArgumentTypeError(f"a length must be positive, got {text!r}")
+    if not (value > 0 and math.isfinite(value)):
+        raise argparse.ArgumentTypeError(f"a length must be positive and finite, got {text!r}")
     return value
 
 
-def _count(minimum: int) -> Callable[[str], int]:
-    """An argparse type: an integer of at least `minimum`."""
+def _count(minimum: int, maximum: int | None = None) -> Callable[[str], int]:
+    """An argparse type: an integer of at least `minimum` (and at most `maximum`)."""
 
     def parse(text: str) -> int:
         try:
@@ -46,9 +50,80 @@ def _count(minimum: int) -> Callable[[str], int]:
             raise argparse.ArgumentTypeError(f"expected an integer, got {text!r}") from None
         if value < minimum:
             raise argparse.ArgumentTypeError(f"must be >= {minimum}, got {value}")
+        if maximum is not None and value > maximum:
+            raise argparse.ArgumentTypeError(f"must be <= {maximum}, got {value}")
         return value
 
     return parse
+
+
+def number(
+    minimum: float | None = None, *, strict: bool = False, not_equal: float | None = None
+) -> Callable[[str], float]:
+    """An argparse type: a finite number (``>= minimum``, ``> minimum`` if `strict`; not
+    `not_equal`)."""
+
+    def parse(text: str) -> float:
+        try:
+            value = float(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
+        if not math.isfinite(value):
+            raise argparse.ArgumentTypeError(f"expected a finite number, got {text!r}")
+        if minimum is not None and (value <= minimum if strict else value < minimum):
+            raise argparse.ArgumentTypeError(
+                f"must be {'>' if strict else '>='} {minimum:g}, got {text!r}"
+            )
+        if value == not_equal:
+            raise argparse.ArgumentTypeError(f"must not be {not_equal:g}, got {text!r}")
+        return value
+
+    return parse
+
+
+def zenith(text: str) -> float:
+    """An argparse type: the light's angle from vertical, degrees in ``[0, 90)``."""
+    value = number(0.0)(text)
+    if value >= 90.0:
+        raise argparse.ArgumentTypeError(f"must be in [0, 90) degrees, got {text!r}")
+    return value
+
+
+def output_folder(path: Path) -> Path:
+    """`--output`, created (with its parents) if missing, else a `ValueError` naming it."""
+    from ._io import check_folder
+
+    try:
+        check_folder(path, "--output")
+        path.mkdir(parents=True, exist_ok=True)
+    except (ValueError, OSError) as err:
+        raise ValueError(f"cannot create the output directory {str(path)!r}: {err}") from err
+    return path
+
+
+def resume_checkpoint(checkpoint: Path, resume: bool) -> None:
+    """`--resume` needs the checkpoint that an earlier run left in `--output`."""
+    if resume and not checkpoint.is_file():
+        raise ValueError(
+            f"`--resume`: no checkpoint at {checkpoint} (run without --resume to start, or "
+            "give the --output of the run to continue)"
+        )
+
+
+def with_flags(run: Callable[[argparse.Namespace], int], flags: dict[str, str]):
+    """`run`, its `ValueError`s naming the command's flags instead of the library's
+    arguments (`flags`: argument -> flag), e.g. `levels` -> `--levels`."""
+
+    def wrapped(args: argparse.Namespace) -> int:
+        try:
+            return run(args)
+        except ValueError as err:
+            text = str(err)
+            for name, flag in flags.items():
+                text = text.replace(f"`{name}`", f"`{flag}`")
+            raise ValueError(text) from err
+
+    return wrapped
 
 
 # names in `skimage.data` that are not pictures (or would download several)
@@ -65,7 +140,10 @@ def _load_target(spec: str | None, size: int) -> np.ndarray:
     name = spec or "camera"
     not_a_picture = f"`TARGET` {name!r} is neither a file nor a scikit-image picture"
     if Path(name).exists():
-        image = np.asarray(read_image(name), float)
+        try:
+            image = np.asarray(read_image(name), float)
+        except ValueError as err:
+            raise ValueError(f"`TARGET` {name!r}: {err}") from err
     elif name in getattr(data, "__all__", ()) and name not in _NOT_PICTURES:
         try:
             image = np.asarray(getattr(data, name)(), float)
@@ -78,7 +156,14 @@ def _load_target(spec: str | None, size: int) -> np.ndarray:
         raise ValueError(not_a_picture)
     if image.ndim == 3:
         image = image[..., :3].mean(axis=-1)
+    if not (np.all(np.isfinite(image)) and image.min() >= 0 and image.max() > 0):
+        raise ValueError(f"`TARGET` {name!r} must be finite, non-negative and not all black")
     rows = max(4, round(size * image.shape[0] / image.shape[1]))
+    if rows * size > MAX_PIXELS:
+        raise ValueError(
+            f"`--size` {size}: the {image.shape[1]} x {image.shape[0]} picture would be "
+            f"{size} x {rows} pixels, over {MAX_PIXELS}"
+        )
     return transform.resize(image, (rows, size), anti_aliasing=True)
 
 
@@ -106,14 +191,22 @@ def add_design(subparsers) -> None:
     design.add_argument(
         "--throw", type=length, default=0.5, help="lens to screen distance (default 500mm)"
     )
-    design.add_argument("--ior", type=float, default=1.5, help="index of refraction (1.5)")
-    design.add_argument("--size", type=_count(2), default=128, help="target columns (default 128)")
+    design.add_argument(
+        "--ior", type=number(1.0, strict=True), default=1.5, help="index of refraction (1.5)"
+    )
+    design.add_argument(
+        "--size",
+        type=_count(2, MAX_SIDE),
+        default=128,
+        help=f"target columns (default 128, at most {MAX_SIDE})",
+    )
     design.add_argument(
         "--levels",
         default=None,
-        help="height-grid sizes, coarse to fine (default: 32, 64, ... up to twice --size)",
+        help="height-grid sizes, coarse to fine (default: 32, 64, ... up to twice --size; "
+        f"at most {MAX_SIDE})",
     )
-    design.add_argument("--steps", type=int, default=40, help="solver steps per level (40)")
+    design.add_argument("--steps", type=_count(1), default=40, help="solver steps per level (40)")
     design.add_argument(
         "--start",
         default="transport",
@@ -143,7 +236,23 @@ def add_design(subparsers) -> None:
     design.add_argument(
         "--verify", action="store_true", help="render the exported solid with the reference"
     )
-    design.set_defaults(func=run_design)
+    design.set_defaults(func=with_flags(run_design, _DESIGN_FLAGS))
+
+
+# the library's argument names of `design_lens` and `export_lens` -> the design's flags
+_DESIGN_FLAGS = {
+    "target": "TARGET",
+    "width": "--width",
+    "height": "--height",
+    "thickness": "--thickness",
+    "throw": "--throw",
+    "ior": "--ior",
+    "levels": "--levels",
+    "heights_shape": "--levels",
+    "max_steps": "--steps",
+    "max_relief": "--max-relief",
+    "tool_radius_mm": "--tool-radius",
+}
 
 
 def _levels(text: str) -> list[int]:
@@ -151,8 +260,8 @@ def _levels(text: str) -> list[int]:
         levels = [int(v) for v in text.split(",")]
     except ValueError as err:
         raise ValueError(f"`--levels` must be integers separated by commas, got {text!r}") from err
-    if not levels or min(levels) < 4:
-        raise ValueError(f"`--levels` must be integers >= 4, got {text!r}")
+    if not levels or min(levels) < 4 or max(levels) > MAX_SIDE:
+        raise ValueError(f"`--levels` must be integers in [4, {MAX_SIDE}], got {text!r}")
     return levels
 
 
@@ -166,9 +275,7 @@ def _run_levels(
 
     from ._inverse.checkpoint import run_rounds
 
-    checkpoint = out / f"{label}.ckpt.npz"
-    if resume and not checkpoint.is_file():
-        print(f"--resume: no checkpoint at {checkpoint}: starting from the first level")
+    checkpoint = out / f"{label}.ckpt.npz"  # `run_design` checked it is there with --resume
     _, done, interrupted = run_rounds(
         rounds,
         {"heights": jnp.zeros(shape), "loss": jnp.asarray(np.inf)},
@@ -191,6 +298,8 @@ def run_design(args: argparse.Namespace) -> int:
     from ._inverse.design import _resample, default_levels, design_lens, transport_shape
     from ._io import write_png
 
+    out = output_folder(args.output)
+    resume_checkpoint(out / "design.ckpt.npz", args.resume)
     target = _load_target(args.target, args.size)
     height = args.height or args.width * target.shape[0] / target.shape[1]
     if args.start == "transport":  # one level: the heights grid of the landing fit
@@ -201,8 +310,6 @@ def run_design(args: argparse.Namespace) -> int:
     spec = dict(
         width=args.width, height=height, thickness=args.thickness, throw=args.throw, ior=args.ior
     )
-    out = args.output
-    out.mkdir(parents=True, exist_ok=True)
     final_shape = (max(4, round(levels[-1] * height / args.width)), levels[-1])
     losses: list[float] = []
     designs: dict[int, object] = {}
@@ -308,10 +415,13 @@ def _loss_plot(losses: list[float], path: Path) -> None:
 
 
 def _pair(text: str) -> tuple[float, float]:
+    """Two positive lengths ``W,H`` in metres."""
     try:
         a, b = (float(v) for v in text.split(","))
     except ValueError as err:
         raise argparse.ArgumentTypeError(f"expected two numbers A,B, got {text!r}") from err
+    if not all(math.isfinite(v) and v > 0 for v in (a, b)):
+        raise argparse.ArgumentTypeError(f"expected two positive numbers, got {text!r}")
     return a, b
 
 
@@ -333,24 +443,40 @@ def add_recover(subparsers) -> None:
     )
     recover.add_argument("target", nargs="*", metavar="TARGET")
     recover.add_argument("--size", default="1,1", type=_pair, help="floor area W,H in metres")
-    recover.add_argument("--depth", type=float, default=0.5, help="rest depth, metres (0.5)")
-    recover.add_argument("--zenith", type=float, default=20.0, help="light zenith, degrees")
-    recover.add_argument("--azimuth", type=float, default=0.0, help="light azimuth, degrees")
-    recover.add_argument("--ior", type=float, default=1.333, help="water's index (1.333)")
+    recover.add_argument(
+        "--depth", type=number(0.0, strict=True), default=0.5, help="rest depth, metres (0.5)"
+    )
+    recover.add_argument(
+        "--zenith", type=zenith, default=20.0, help="light zenith, degrees in [0, 90)"
+    )
+    recover.add_argument("--azimuth", type=number(), default=0.0, help="light azimuth, degrees")
+    recover.add_argument(
+        "--ior",
+        type=number(0.0, strict=True, not_equal=1.0),
+        default=1.333,
+        help="water's index (1.333)",
+    )
     recover.add_argument(
         "--boundary", default="periodic", choices=("periodic", "clamp"), help="surface edges"
     )
     recover.add_argument(
-        "--blur", type=float, default=0.0, help="camera blur, Gaussian PSF sigma in pixels (0)"
+        "--blur",
+        type=number(0.0),
+        default=0.0,
+        help="camera blur, Gaussian PSF sigma in pixels (0)",
     )
     recover.add_argument(
         "--gamma",
-        type=float,
+        type=number(0.0, strict=True),
         default=1.0,
         help="decode file values v as v**GAMMA (2.2 for an sRGB photograph; 1: linear data)",
     )
     recover.add_argument(
-        "--heights", type=int, default=None, help="height samples per axis (the target's)"
+        "--heights",
+        type=_count(2, MAX_SIDE),
+        default=None,
+        help=f"height samples per axis (the target's; the built-in sea: 64, at most "
+        f"{MAX_BUILT_IN})",
     )
     recover.add_argument(
         "--solver",
@@ -361,10 +487,24 @@ def add_recover(subparsers) -> None:
     recover.add_argument(
         "--levels", default="1", help="coarse-to-fine factors of the --solver, e.g. 4,2,1"
     )
-    recover.add_argument("--steps", type=int, default=50, help="solver steps per level (50)")
+    recover.add_argument("--steps", type=_count(1), default=50, help="solver steps per level (50)")
     recover.add_argument("--output", type=Path, default=Path("recover"), help="output folder")
     recover.add_argument("--resume", action="store_true", help="continue from the checkpoint")
-    recover.set_defaults(func=run_recover)
+    recover.set_defaults(func=with_flags(run_recover, _RECOVER_FLAGS))
+
+
+# the library's argument names of `recover_surface` / `recover_sequence` -> recover's flags
+_RECOVER_FLAGS = {
+    "target": "TARGET",
+    "frames": "TARGET",
+    "extent": "--size",
+    "rest_depth": "--depth",
+    "ior": "--ior",
+    "blur": "--blur",
+    "heights_shape": "--heights",
+    "coarse_to_fine": "--levels",
+    "max_steps": "--steps",
+}
 
 
 def _built_in_sea(args, extent, light) -> tuple[np.ndarray, np.ndarray]:
@@ -423,8 +563,17 @@ def run_recover(args: argparse.Namespace) -> int:
         raise ValueError(f"`--levels` must be integers such as 4,2,1, got {args.levels!r}") from err
     if factors[-1] != 1 or any(a <= b for a, b in zip(factors, factors[1:], strict=False)):
         raise ValueError(f"`--levels` must decrease strictly to 1, got {args.levels!r}")
-    if args.heights is not None and args.heights < 2:
-        raise ValueError(f"`--heights` must be >= 2, got {args.heights}")
+    if not args.target and (args.heights or 64) > MAX_BUILT_IN:
+        raise ValueError(
+            f"`--heights` {args.heights}: the built-in sea (no TARGET) is at most "
+            f"{MAX_BUILT_IN} samples a side (its caustic is traced by the reference first)"
+        )
+    for name in args.target:
+        if not Path(name).exists():
+            raise ValueError(f"`TARGET` {name!r}: no such file or folder")
+    out = output_folder(args.output)
+    checkpoint = out / "recover.ckpt.npz"
+    resume_checkpoint(checkpoint, args.resume)
     extent = (0.0, args.size[0], 0.0, args.size[1])
     light = DirectionalLight.from_angles(args.zenith, args.azimuth)
     truth = None
@@ -435,16 +584,9 @@ def run_recover(args: argparse.Namespace) -> int:
         frames = frame_paths(args.target[0])
     else:
         frames = [Path(t) for t in args.target]
-    if not (math.isfinite(args.gamma) and args.gamma > 0):
-        raise ValueError(f"`--gamma` must be a positive number, got {args.gamma}")
     targets = load_frames(frames, args.ior)  # read and checked once, scaled to unit mean
     if args.gamma != 1 and args.target:
         targets = [t**args.gamma / np.mean(t**args.gamma) for t in targets]
-    out = args.output
-    out.mkdir(parents=True, exist_ok=True)
-    checkpoint = out / "recover.ckpt.npz"
-    if args.resume and not checkpoint.is_file():
-        print(f"--resume: no checkpoint at {checkpoint}: starting from the first frame")
     shape = None if args.heights is None else (args.heights, args.heights)
     start = time.perf_counter()
     result = recover_sequence(

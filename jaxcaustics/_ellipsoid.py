@@ -24,10 +24,12 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
+from ._checks import check_bool, check_int
 from ._light_view import orthonormal_basis
-from ._mesh import Mesh, MeshScene
+from ._mesh import MAX_INTERFACES, Mesh, MeshScene
 from ._optics import fresnel_transmittance, refract_components
 from ._photons import _emission_frame, trace_mesh_rays
+from ._raster import check_fits, check_memory_limit
 from ._scene import (
     DirectionalLight,
     Effects,
@@ -37,11 +39,14 @@ from ._scene import (
     _check_finite,
     _check_ior,
     _check_positive_scalar,
+    _check_sequence_of,
     _is_concrete,
 )
 
 # Largest |R^T R - I| entry accepted for an orthonormal rotation.
 _ORTHO_TOL = 1e-6
+# Most subdivisions of `Ellipsoid.to_mesh`: 20 * 4**8 = 1.3 million faces.
+MAX_SUBDIVISIONS = 8
 
 
 def _check_vector3(value, name: str) -> Array:
@@ -89,8 +94,12 @@ class Ellipsoid(eqx.Module):
     def __init__(self, center, radii, rotation=None):
         self.center = _check_vector3(center, "center")
         r = _check_vector3(radii, "radii")
-        if _is_concrete(r) and not bool(np.all(np.asarray(r) > 0)):
-            raise ValueError(f"`radii` must be positive, got {np.asarray(r).tolist()}")
+        if _is_concrete(r):
+            rn = np.asarray(r)
+            if not bool(np.all(rn > 0)):
+                raise ValueError(f"`radii` must be positive, got {rn.tolist()}")
+            if not bool(np.all(rn * rn >= np.finfo(rn.dtype).tiny)):  # the quadric's 1/r^2
+                raise ValueError(f"`radii` are too small for {rn.dtype}: {rn.tolist()}")
         self.radii = r
         if rotation is None:
             rotation = jnp.eye(3, dtype=r.dtype)
@@ -121,13 +130,8 @@ class Ellipsoid(eqx.Module):
         counter-clockwise seen from outside, also for an improper `rotation`)."""
         import trimesh
 
-        if (
-            isinstance(subdivisions, bool)
-            or not isinstance(subdivisions, numbers.Integral)
-            or subdivisions < 0
-        ):
-            raise ValueError(f"`subdivisions` must be an integer >= 0, got {subdivisions!r}")
-        sphere = trimesh.creation.icosphere(int(subdivisions))
+        subdivisions = check_int(subdivisions, "subdivisions", 0, MAX_SUBDIVISIONS)
+        sphere = trimesh.creation.icosphere(subdivisions)
         unit = jnp.asarray(np.asarray(sphere.vertices), self.radii.dtype)
         # R diag(1, 1, det R) maps the unit sphere onto the same ellipsoid and keeps the
         # orientation of the faces
@@ -139,6 +143,17 @@ class Ellipsoid(eqx.Module):
 
 def _lowest_z(ellipsoid: Ellipsoid) -> Array:
     return ellipsoid.center[2] - ellipsoid.half_extents[2]
+
+
+def _overlap(a: Ellipsoid, b: Ellipsoid) -> bool:
+    """Whether two (concrete) ellipsoids surely intersect: the spheres inscribed in them
+    (about their centres, of their smallest semi-axes) overlap by more than rounding
+    (1e-6 relative). Touching is allowed."""
+    leaves = (a.center, a.radii, b.center, b.radii)
+    if not all(_is_concrete(x) for x in leaves):
+        return False
+    gap = np.linalg.norm(np.asarray(a.center, float) - np.asarray(b.center, float))
+    return bool(gap < (float(np.min(a.radii)) + float(np.min(b.radii))) * (1 - 1e-6))
 
 
 class EllipsoidScene(eqx.Module):
@@ -197,12 +212,8 @@ class EllipsoidScene(eqx.Module):
             raise ValueError(f"`light` must be a DirectionalLight, got {type(light).__name__}")
         if not isinstance(receiver, PlaneReceiver):
             raise ValueError(f"`receiver` must be a PlaneReceiver, got {type(receiver).__name__}")
-        if isinstance(interfaces, bool) or not isinstance(interfaces, int) or interfaces < 1:
-            raise ValueError(f"`interfaces` must be an integer >= 1, got {interfaces!r}")
-        occluders = tuple(occluders)
-        for k, occ in enumerate(occluders):
-            if not isinstance(occ, Ellipsoid):
-                raise ValueError(f"`occluders[{k}]` must be an Ellipsoid, got {type(occ).__name__}")
+        interfaces = check_int(interfaces, "interfaces", 1, MAX_INTERFACES)
+        occluders = _check_sequence_of(occluders, "occluders", Ellipsoid)
         for name, ell in [("generator", generator)] + [
             (f"occluders[{k}]", o) for k, o in enumerate(occluders)
         ]:
@@ -214,12 +225,18 @@ class EllipsoidScene(eqx.Module):
                         f"`{name}` reaches below the screen (z < 0): its lowest point is at "
                         f"z = {low:.6g}"
                     )
+        for k, occ in enumerate(occluders):
+            if _overlap(generator, occ):
+                raise ValueError(
+                    f"`occluders[{k}]` intersects the generator: their inscribed spheres "
+                    "overlap (two solids cannot share space)"
+                )
         self.generator = generator
         self.light = light
         self.receiver = receiver
         self.occluders = occluders
         self.ior = _check_ior(ior)
-        self.fresnel = bool(fresnel)
+        self.fresnel = check_bool(fresnel, "fresnel")
         self.interfaces = interfaces
 
     @property
@@ -408,12 +425,18 @@ def _mesh_exit_rays(scene: MeshScene, direction, n: int, channel: int) -> ExitRa
     return ExitRays(o, d, energy, spacing, 0.5 * (lo + hi), jnp.max(hi - lo))
 
 
+EXIT_RAY_FLOATS = 32
+"""Numbers one ray takes while `trace_exit_rays` traces it (the exit ray and XLA's
+temporaries: 20 measured in float64 for an ellipsoid), for its memory estimate."""
+
+
 def trace_exit_rays(
     scene: EllipsoidScene | MeshScene,
     rays_per_axis: int,
     *,
     direction=None,
     channel: int = 0,
+    memory_limit: int | None = None,
 ) -> ExitRays:
     """Cast a grid of parallel rays at a caustic object; the rays that leave it.
 
@@ -438,6 +461,8 @@ def trace_exit_rays(
       `unit_direction` (required for a mesh scene with a point light). It may be traced:
       ``jax.vmap`` over directions works.
     - `channel`: which index of refraction of the scene to use (static int).
+    - `memory_limit`: bytes the tracing may take (default 1 GiB; `EXIT_RAY_FLOATS`
+      numbers a ray): a larger grid raises a `ValueError` before anything is compiled.
 
     **Returns:** an `ExitRays` with ``R = rays_per_axis**2`` rays (row-major over the
     grid); rays that did not leave the object have energy 0.
@@ -446,12 +471,7 @@ def trace_exit_rays(
         raise ValueError(
             f"`scene` must be an EllipsoidScene or a MeshScene, got {type(scene).__name__}"
         )
-    if (
-        isinstance(rays_per_axis, bool)
-        or not isinstance(rays_per_axis, numbers.Integral)
-        or rays_per_axis < 2
-    ):
-        raise ValueError(f"`rays_per_axis` must be an integer >= 2, got {rays_per_axis!r}")
+    rays_per_axis = check_int(rays_per_axis, "rays_per_axis", 2)
     channels = len(scene.iors)
     if (
         isinstance(channel, bool)
@@ -473,6 +493,16 @@ def trace_exit_rays(
             f"`direction` must be a float array of shape (3,), got {direction.dtype} "
             f"{direction.shape}"
         )
+    if _is_concrete(direction):
+        d = np.asarray(direction)
+        if not np.all(np.isfinite(d)) or not np.any(d):
+            raise ValueError(f"`direction` must be finite and non-zero, got {d.tolist()}")
+    check_fits(
+        rays_per_axis**2 * EXIT_RAY_FLOATS * direction.dtype.itemsize,
+        check_memory_limit(memory_limit),
+        f"tracing {rays_per_axis}^2 rays",
+        "lower `rays_per_axis`",
+    )
     n, channel = int(rays_per_axis), int(channel)
     if isinstance(scene, MeshScene):
         return _mesh_exit_rays(scene, direction, n, channel)

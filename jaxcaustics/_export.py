@@ -22,7 +22,6 @@ from __future__ import annotations
 import dataclasses
 import json
 import math
-import os
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -30,7 +29,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ._io import write_exr, write_png_linear16
+from ._checks import check_shape
+from ._io import check_folder, write_exr, write_png_linear16
 from ._scene import HeightField, LensScene
 from ._surface import height_and_gradient
 
@@ -45,6 +45,9 @@ __all__ = [
 _MM = 1000.0  # millimetres per metre
 _MESH_FORMATS = ("stl", "obj", "ply")
 _BLOCK_POINTS = 1 << 18  # points per surface evaluation (bounds the memory used)
+# most grid points of a solid, height map or report (4096^2: about 3 GB for the solid's
+# trimesh and 2 GB for the report's derivatives; more takes minutes and runs out of memory)
+MAX_SAMPLES = 1 << 24
 _evaluate_jit = jax.jit(height_and_gradient, static_argnames="curvature")
 
 
@@ -52,7 +55,7 @@ _evaluate_jit = jax.jit(height_and_gradient, static_argnames="curvature")
 
 
 def _check_number(value, name: str, *, low: float, low_inclusive: bool) -> float:
-    if isinstance(value, bool):
+    if isinstance(value, (bool, np.bool_, str, bytes)):
         raise ValueError(f"`{name}` must be a number, got {value!r}")
     try:
         v = float(value)
@@ -95,17 +98,14 @@ def _lens(scene_or_surface, thickness) -> tuple[HeightField, float]:
 def _check_samples(samples, surface: HeightField, factor: int) -> tuple[int, int]:
     if samples is None:
         rows, cols = surface.shape
-        return factor * rows + 1, factor * cols + 1
-    try:
-        shp = tuple(samples)
-        ok = len(shp) == 2 and all(
-            not isinstance(s, bool) and int(s) == s and int(s) >= 2 for s in shp
-        )
-    except (TypeError, ValueError):
-        ok = False
-    if not ok:
-        raise ValueError(f"`samples` must be (rows, cols), two integers >= 2, got {samples!r}")
-    return int(shp[0]), int(shp[1])
+        rows, cols = factor * rows + 1, factor * cols + 1
+        if rows * cols > MAX_SAMPLES:
+            raise ValueError(
+                f"`samples`: the default grid {(rows, cols)} ({factor} per height sample) "
+                f"has over {MAX_SAMPLES} points; pass a smaller `samples`"
+            )
+        return rows, cols
+    return check_shape(samples, "samples", 2, max_size=MAX_SAMPLES)
 
 
 # --------------------------------------------------------------------------- sampling
@@ -159,9 +159,10 @@ def lens_height_map(scene_or_surface, thickness=None, *, samples=None) -> np.nda
     - `scene_or_surface`: a `LensScene` (its `thickness` is used) or a `HeightField`.
     - `thickness`: metres from the bottom face to the rest plane of the top surface (> 0);
       required with a `HeightField`, must be None with a `LensScene`.
-    - `samples`: ``(rows, cols)`` of the grid (each >= 2); default
-      ``(2 rows + 1, 2 cols + 1)`` of ``surface.heights``, so that the grid holds every
-      sample's centre and every pixel edge.
+    - `samples`: ``(rows, cols)`` of the grid (two ints, each >= 2, at most
+      `MAX_SAMPLES` points); default ``(2 rows + 1, 2 cols + 1)`` of
+      ``surface.heights``, so that the grid holds every sample's centre and every pixel
+      edge.
 
     **Returns:** float64 array of shape ``samples``, millimetres: ``z = thickness + H``
     of the top surface above the flat bottom. Entry ``[i, j]`` lies at
@@ -485,23 +486,11 @@ def _check_formats(formats) -> tuple[str, ...]:
             f"`formats` must be a sequence of {_MESH_FORMATS}, got {formats!r}"
         ) from err
     bad = [f for f in out if f not in _MESH_FORMATS]
+    if not out:
+        raise ValueError(f"`formats` must name at least one of {_MESH_FORMATS}, got {formats!r}")
     if bad:
         raise ValueError(f"`formats` must be among {_MESH_FORMATS}, got {bad}")
     return tuple(dict.fromkeys(out))
-
-
-def _check_directory(directory) -> Path:
-    if not isinstance(directory, (str, os.PathLike)):
-        raise ValueError(
-            f"`directory` must be a str or os.PathLike, got {type(directory).__name__}"
-        )
-    d = Path(directory)
-    if d.exists() and not d.is_dir():
-        raise ValueError(f"`directory` {str(d)!r} exists and is not a directory")
-    for parent in d.parents:
-        if parent.exists() and not parent.is_dir():
-            raise ValueError(f"`directory` {str(d)!r}: {str(parent)!r} is not a directory")
-    return d
 
 
 def export_lens(
@@ -548,7 +537,7 @@ def export_lens(
     ``"height_png"``, ``"height_json"``, ``"height_exr"``, ``"report_json"``,
     ``"report_txt"``.
     """
-    d = _check_directory(directory)
+    d = check_folder(directory, "directory")
     if not isinstance(name, str) or not name or name != Path(name).name or name in (".", ".."):
         raise ValueError(f"`name` must be a plain file name stem, got {name!r}")
     fmts = _check_formats(formats)
@@ -564,7 +553,10 @@ def export_lens(
     z, width, height = _top_mm(surface, t, samples)
     mesh = _trimesh(z, width, height)
 
-    d.mkdir(parents=True, exist_ok=True)
+    try:
+        d.mkdir(parents=True, exist_ok=True)
+    except OSError as err:
+        raise ValueError(f"`directory` {str(d)!r} cannot be created: {err}") from err
     paths: dict[str, Path] = {}
     for fmt in fmts:
         paths[fmt] = d / f"{name}.{fmt}"

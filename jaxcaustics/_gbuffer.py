@@ -26,11 +26,13 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Bool, Float
 
+from ._checks import check_array, check_int
 from ._intersect import face_normals, hit_on_triangle, moller_trumbore, vertex_normals
 from ._light_view import LightView
 from ._mesh import MeshScene
 from ._optics import fresnel_transmittance, reflect, refract_components
 from ._photons import trace_mesh_rays
+from ._raster import check_fits, check_memory_limit
 from ._surface import bilinear
 
 INTERSECTIONS = ("image_space", "exact")
@@ -131,12 +133,46 @@ def _raster_faces(scene: MeshScene, view: LightView, resolution: int, window: in
     return first, last
 
 
+TEXEL_FLOATS = 64
+"""Numbers one texel of `geometry_buffers` takes (buffers, rays and XLA's temporaries: 59
+measured in float64), for its memory estimate."""
+
+FACE_TEXEL_FLOATS = 12
+"""Numbers each face takes per texel of its ``window x window`` block while the faces are
+rasterised (12 measured in float64), for the memory estimate of `geometry_buffers`."""
+
+MAX_ITERATIONS = 1000
+"""Most `iterations` of `ray_geo` (each one is traced anew: the graph grows with them)."""
+
+
 def geometry_buffers(
-    scene: MeshScene, view: LightView, resolution: int, window: int
+    scene: MeshScene,
+    view: LightView,
+    resolution: int,
+    window: int,
+    *,
+    memory_limit: int | None = None,
 ) -> GeometryBuffers:
     """Render the geometry buffers of `scene` from the light at ``resolution^2`` texels
-    (`window`: see `raster_window`). Differentiable with respect to the vertices (the
-    rasteriser picks the faces; the hits on them are recomputed from the vertices)."""
+    (`window`: see `raster_window`; in ``[1, resolution]``). Differentiable with respect
+    to the vertices (the rasteriser picks the faces; the hits on them are recomputed from
+    the vertices). `memory_limit`: bytes the buffers may take (default 1 GiB;
+    ``TEXEL_FLOATS`` numbers a texel and ``FACE_TEXEL_FLOATS`` per face and texel of its
+    window): more raise a `ValueError` before anything is compiled."""
+    if not isinstance(scene, MeshScene):
+        raise ValueError(f"`scene` must be a MeshScene, got {type(scene).__name__}")
+    if not isinstance(view, LightView):
+        raise ValueError(f"`view` must be a LightView (`light_view`), got {type(view).__name__}")
+    resolution = check_int(resolution, "resolution", 1)
+    window = check_int(window, "window", 1, resolution)
+    faces = scene.generator.faces.shape[0]
+    numbers = TEXEL_FLOATS * resolution**2 + FACE_TEXEL_FLOATS * faces * window**2
+    check_fits(
+        numbers * scene.generator.vertices.dtype.itemsize,
+        check_memory_limit(memory_limit),
+        f"geometry buffers of {resolution}^2 texels ({faces} faces, window {window})",
+        "lower `resolution` or `window`",
+    )
     shape = (resolution, resolution)
     u, v = view.texel_centres(shape)
     origins, directions = view.rays(u.reshape(-1), v.reshape(-1))
@@ -195,8 +231,23 @@ def ray_geo(
     behind it in the light's view, repeat `iterations` times: step that distance along
     the ray, look up the surface point the light sees there, and take its distance from
     `origin` as the new distance (the paper's ``rayGeo``; it starts from 1 in scene
-    units, which has no meaning in metres). **Returns:** the estimated hit on the ray.
+    units, which has no meaning in metres). `view`: a `LightView`; `positions`: an
+    ``(R, R', 3)`` positions texture over its window; `origin`, `direction`: ``(..., 3)``
+    (broadcasting); `iterations`: an int in ``[0, MAX_ITERATIONS]``. **Returns:** the
+    estimated hit on the ray.
     """
+    if not isinstance(view, LightView):
+        raise ValueError(f"`view` must be a LightView (`light_view`), got {type(view).__name__}")
+    positions = check_array(positions, "positions", (None, None, 3))
+    origin = check_array(origin, "origin", (..., 3))
+    direction = check_array(direction, "direction", (..., 3))
+    try:
+        np.broadcast_shapes(origin.shape, direction.shape)
+    except ValueError as err:
+        raise ValueError(
+            f"`direction` {direction.shape} must broadcast with `origin` {origin.shape}"
+        ) from err
+    iterations = check_int(iterations, "iterations", 0, MAX_ITERATIONS)
     dist = _length(_sample(view, positions, origin) - origin)
     for _ in range(iterations):
         probe = origin + dist[..., None] * direction

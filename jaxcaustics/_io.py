@@ -21,11 +21,14 @@ import json
 import math
 import os
 import struct
+import tempfile
 import zlib
 from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
+
+from ._checks import check_bool
 
 __all__ = ["read_exr", "read_image", "write_exr", "write_png", "write_png_linear16"]
 
@@ -50,9 +53,32 @@ def _as_path(path, suffixes: tuple[str, ...], *, name: str = "path") -> Path:
     return p
 
 
+def check_folder(folder, name: str) -> Path:
+    """`folder` as a `Path` if it is a directory this process can write in, or one it
+    can create (its nearest existing ancestor is a writable directory), else a
+    `ValueError` naming `name`. Creates nothing (a probe file is removed at once)."""
+    if not isinstance(folder, (str, os.PathLike)):
+        raise ValueError(f"`{name}` must be a str or os.PathLike, got {type(folder).__name__}")
+    d = Path(folder)
+    if d.exists() and not d.is_dir():
+        raise ValueError(f"`{name}` {str(d)!r} exists and is not a directory")
+    existing = next(p for p in (d, *d.parents) if p.exists())
+    if not existing.is_dir():
+        raise ValueError(f"`{name}` {str(d)!r}: {str(existing)!r} is not a directory")
+    try:
+        with tempfile.TemporaryFile(dir=existing):
+            pass
+    except OSError as err:
+        raise ValueError(
+            f"`{name}` {str(d)!r}: cannot write in {str(existing)!r} ({err.strerror or err})"
+        ) from err
+    return d
+
+
 def _prepare_output(p: Path) -> None:
     if p.is_dir():
         raise ValueError(f"`path` {str(p)!r} is a directory")
+    check_folder(p.parent, "path")
     p.parent.mkdir(parents=True, exist_ok=True)
 
 
@@ -89,6 +115,8 @@ def _as_image(image, name: str, *, ndims: tuple[int, ...] = (2, 3)) -> np.ndarra
 def _check_optional_scalar(value, name: str, *, positive: bool) -> float | None:
     if value is None:
         return None
+    if isinstance(value, (str, bytes, bool, np.bool_)):
+        raise ValueError(f"`{name}` must be a number or None, got {value!r}")
     try:
         v = float(value)
     except (TypeError, ValueError) as err:
@@ -383,7 +411,8 @@ def write_png(path, image, *, exposure=None, gamma=2.2, bit_depth: int = 8) -> N
     gamma_value = _check_optional_scalar(gamma, "gamma", positive=True)
     if gamma_value is None:
         raise ValueError("`gamma` must be a positive number, got None")
-    if isinstance(bit_depth, bool) or bit_depth not in (8, 16):
+    whole = isinstance(bit_depth, (int, np.integer)) and not isinstance(bit_depth, bool)
+    if not whole or bit_depth not in (8, 16):
         raise ValueError(f"`bit_depth` must be 8 or 16, got {bit_depth!r}")
     if exposure is None:
         high = float(np.percentile(arr, 99.5))
@@ -486,6 +515,7 @@ def read_image(path, *, as_gray: bool = True) -> np.ndarray:
         For an unknown extension or an unreadable or corrupt file.
     """
     p = _as_path(path, _READ_EXTENSIONS)
+    as_gray = check_bool(as_gray, "as_gray")
     _check_input_file(p)
     if p.suffix.lower() == ".exr":
         img = read_exr(p)

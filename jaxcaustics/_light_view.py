@@ -139,7 +139,33 @@ def light_view(scene) -> LightView:
     and a plane `receiver`): its window covers the receiver's extent on ``z = 0`` and the
     generator's bounding box. The window is held fixed under differentiation (it is where
     images are sampled, not physics); the light's direction, position and intensity carry
-    their derivatives into the photons."""
+    their derivatives into the photons. A point light that does not see the whole scene
+    from one side (inside or below its bounding box) has no view: a `ValueError`."""
+    from ._mesh import Mesh
+    from ._scene import PlaneReceiver, PointLight
+
+    if not (
+        isinstance(getattr(scene, "generator", None), Mesh)
+        and isinstance(getattr(scene, "light", None), DirectionalLight | PointLight)
+        and isinstance(getattr(scene, "receiver", None), PlaneReceiver)
+    ):
+        raise ValueError(
+            "`scene` must be a MeshScene (a `generator` Mesh, a DirectionalLight or "
+            f"PointLight and a PlaneReceiver), got {type(scene).__name__}"
+        )
+    view = _light_view(scene)
+    if not isinstance(view.window, jax.core.Tracer) and not bool(
+        jnp.all(jnp.isfinite(view.window))
+    ):
+        raise ValueError(
+            "`scene`: the light must see the whole scene from one side; a point light "
+            "inside or below the bounding box of the receiver and the generator has no view"
+        )
+    return view
+
+
+def _light_view(scene) -> LightView:
+    """`light_view` once `scene` is checked."""
     sg = jax.lax.stop_gradient
     verts = sg(scene.generator.vertices)
     dtype = verts.dtype

@@ -17,6 +17,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float, Int
 
+from ._checks import check_bool, check_choice, check_int, check_real_array
 from ._scene import (
     DirectionalLight,
     Effects,
@@ -26,11 +27,14 @@ from ._scene import (
     _check_finite,
     _check_ior,
     _check_light,
+    _check_sequence_of,
     _is_concrete,
 )
 
 MATERIALS = ("refractor", "mirror")
 NORMALS = ("smooth", "flat")
+# Most interfaces a photon path may meet: the tracers loop this many times per photon.
+MAX_INTERFACES = 1000
 
 
 class Mesh(eqx.Module):
@@ -51,7 +55,7 @@ class Mesh(eqx.Module):
         if v.ndim != 2 or v.shape[1] != 3:
             raise ValueError(f"`vertices` must have shape (V, 3), got {v.shape}")
         _check_finite(v, "vertices")
-        f = np.asarray(faces) if _is_concrete(faces) else faces
+        f = check_real_array(faces, "faces") if _is_concrete(faces) else faces
         if f.ndim != 2 or f.shape[1] != 3:
             raise ValueError(f"`faces` must have shape (F, 3), got {f.shape}")
         if f.shape[0] == 0:
@@ -61,8 +65,8 @@ class Mesh(eqx.Module):
                 raise ValueError(f"`faces` must hold integer indices, got dtype {f.dtype}")
             if f.min() < 0 or f.max() >= v.shape[0]:
                 raise ValueError(
-                    f"`faces` indices must lie in [0, {v.shape[0] - 1}], "
-                    f"got [{int(f.min())}, {int(f.max())}]"
+                    f"`faces` indices must lie in [0, {v.shape[0] - 1}] (`vertices` has "
+                    f"{v.shape[0]} rows), got [{int(f.min())}, {int(f.max())}]"
                 )
         self.vertices = v
         self.faces = jnp.asarray(f, dtype=jnp.int32)
@@ -73,15 +77,22 @@ class Mesh(eqx.Module):
         faces = np.asarray(getattr(mesh, "faces", np.zeros((0, 3))))
         if faces.size == 0:
             raise ValueError("`mesh` has no faces")
-        return cls(np.asarray(mesh.vertices, dtype=float), faces)
+        if not hasattr(mesh, "vertices"):
+            raise ValueError(f"`mesh` has no vertices: a {type(mesh).__name__}")
+        try:
+            return cls(np.asarray(mesh.vertices), faces)
+        except ValueError as err:
+            raise ValueError(f"`mesh` is not a valid mesh: {err}") from err
 
     @classmethod
     def load(cls, path: str | os.PathLike) -> Mesh:
         """Read an OBJ, STL, PLY (any format trimesh reads) file as one mesh."""
         import trimesh
 
+        if not isinstance(path, (str, os.PathLike)):
+            raise ValueError(f"`path` must be a str or os.PathLike, got {type(path).__name__}")
         path = os.fspath(path)
-        if not os.path.isfile(path):
+        if not isinstance(path, str) or not os.path.isfile(path):
             raise ValueError(f"`path` {path!r} does not exist or is not a file")
         try:
             loaded = trimesh.load(path, force="mesh")
@@ -176,16 +187,10 @@ class MeshScene(eqx.Module):
         _check_light(light)
         if not isinstance(receiver, PlaneReceiver):
             raise ValueError(f"`receiver` must be a PlaneReceiver, got {type(receiver).__name__}")
-        if material not in MATERIALS:
-            raise ValueError(f"`material` must be one of {MATERIALS}, got {material!r}")
-        if normals not in NORMALS:
-            raise ValueError(f"`normals` must be one of {NORMALS}, got {normals!r}")
-        if isinstance(interfaces, bool) or not isinstance(interfaces, int) or interfaces < 1:
-            raise ValueError(f"`interfaces` must be an integer >= 1, got {interfaces!r}")
-        occluders = tuple(occluders)
-        for k, occ in enumerate(occluders):
-            if not isinstance(occ, Mesh):
-                raise ValueError(f"`occluders[{k}]` must be a Mesh, got {type(occ).__name__}")
+        check_choice(material, "material", MATERIALS)
+        check_choice(normals, "normals", NORMALS)
+        interfaces = check_int(interfaces, "interfaces", 1, MAX_INTERFACES)
+        occluders = _check_sequence_of(occluders, "occluders", Mesh)
         if (
             material == "refractor"
             and _is_concrete(generator.faces)
@@ -231,7 +236,7 @@ class MeshScene(eqx.Module):
         self.occluders = occluders
         self.material = material
         self.ior = _check_ior(ior)
-        self.fresnel = bool(fresnel)
+        self.fresnel = check_bool(fresnel, "fresnel")
         self.interfaces = interfaces
         self.normals = normals
 

@@ -12,17 +12,47 @@ nor its guards are traced (`tir_possible`).
 
 from __future__ import annotations
 
+import jax
 import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Bool, Float
+
+from ._checks import check_array, check_number
 
 
 def _dot(a: Array, b: Array) -> Array:
     return jnp.sum(a * b, axis=-1)
 
 
+def _check_vectors(direction, normal) -> tuple[Array, Array]:
+    """`direction` and `normal` as ``(..., 3)`` float arrays that broadcast, finite
+    (unless traced); else a `ValueError` naming the argument."""
+    direction = check_array(direction, "direction", (..., 3))
+    normal = check_array(normal, "normal", (..., 3))
+    try:
+        np.broadcast_shapes(direction.shape, normal.shape)
+    except ValueError as err:
+        raise ValueError(
+            f"`normal` {normal.shape} must broadcast with `direction` {direction.shape}"
+        ) from err
+    return direction, normal
+
+
+def _check_eta(eta):
+    """`eta` unchanged (a Python number stays one: see `tir_possible`), once checked to
+    be positive and finite (a number or an array; traced: unchecked)."""
+    if isinstance(eta, jax.core.Tracer):
+        return eta
+    if np.ndim(eta) == 0 or isinstance(eta, str):
+        check_number(eta, "eta", low=0.0, low_open=True)
+    elif np.any(np.asarray(check_array(eta, "eta")) <= 0):
+        raise ValueError("`eta` must be > 0 (a ratio of indices of refraction)")
+    return eta
+
+
 def reflect(direction: Float[Array, "... 3"], normal: Float[Array, "... 3"]) -> Array:
     """Mirror `direction` about the plane with unit `normal`: ``d - 2 (d.n) n``."""
+    direction, normal = _check_vectors(direction, normal)
     return direction - 2.0 * _dot(direction, normal)[..., None] * normal
 
 
@@ -87,6 +117,8 @@ def refract(
     and the total-internal-reflection mask, shape ``(...)``. Where ``tir`` is true the
     returned direction is the mirror reflection (finite, and with finite gradients).
     """
+    direction, normal = _check_vectors(direction, normal)
+    eta = _check_eta(eta)
     direction, normal = jnp.broadcast_arrays(direction, normal)
     transmitted, tir, _ = refract_components(
         tuple(jnp.moveaxis(direction, -1, 0)), tuple(jnp.moveaxis(normal, -1, 0)), eta
@@ -105,6 +137,10 @@ def fresnel_transmittance(cos_i: Float[Array, ...], eta) -> Float[Array, ...]:
     **Returns:** the transmitted fraction of power, in ``[0, 1]``; 0 at total internal
     reflection and at grazing incidence.
     """
+    cos_i = check_array(cos_i, "cos_i")
+    if not isinstance(cos_i, jax.core.Tracer) and np.any(np.abs(np.asarray(cos_i)) > 1 + 1e-5):
+        raise ValueError("`cos_i` must be a cosine, in [0, 1]")
+    eta = _check_eta(eta)
     cos_i = jnp.abs(cos_i)
     cos_t, tir = _cos_transmitted(cos_i, eta)
     # R_s and R_p with indices (eta, 1): n1 cos_i vs n2 cos_t, scaled by 1/n2.

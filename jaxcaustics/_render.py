@@ -2,11 +2,13 @@
 
 from __future__ import annotations
 
+import inspect
 import logging
 from typing import Any
 
 from jaxtyping import Array
 
+from ._checks import check_bool, check_choice, check_number
 from ._choose import DEFAULT_MARGIN, as_mesh_scene, choose_method
 from ._methods.caustic_map import adaptive_caustic_map, caustics_mapping
 from ._methods.spot_lights import spot_lights
@@ -30,6 +32,21 @@ DEFAULT_METHOD = {
     "MeshScene": "triangles",
     "EllipsoidScene": "spot_lights",
 }
+
+
+def check_knob_names(method: str, knobs: dict) -> None:
+    """A `ValueError` naming the first of `knobs` that is not a keyword of `method`'s
+    function (a knob of another method, a typo): never silently ignored. A method that
+    takes ``**knobs`` of its own (spot lights: the fit's) checks those itself."""
+    parameters = inspect.signature(METHODS[method]).parameters
+    if any(p.kind is inspect.Parameter.VAR_KEYWORD for p in parameters.values()):
+        return
+    names = sorted(n for n, p in parameters.items() if p.kind is inspect.Parameter.KEYWORD_ONLY)
+    unknown = sorted(set(knobs) - set(names))
+    if unknown:
+        raise ValueError(
+            f"`{unknown[0]}` is not a knob of method {method!r} (its knobs: {', '.join(names)})"
+        )
 
 
 def render(
@@ -64,10 +81,19 @@ def render(
     - `**knobs`: the method's quality knobs (see `two_pass`, `caustic_triangles`,
       `caustics_mapping`, `adaptive_caustic_map`, `spot_lights`).
 
+    Every argument is checked before anything is compiled: `method` one of the names
+    above, `return_stats` a bool, `tolerance` a positive number, `margin` a number >= 1
+    (and only with `tolerance`), a knob the method does not take is refused by name, and
+    each method checks its knobs' types, ranges and memory (`memory_limit`).
+
     **Returns:** the irradiance image, relative to the irradiance the light gives a
     horizontal plane: ``(rows, cols)`` for a single index of refraction, ``(rows, cols,
     channels)`` for a sequence of indices. With `return_stats`, ``(image, stats)``.
     """
+    return_stats = check_bool(return_stats, "return_stats")
+    check_number(margin, "margin", low=1.0)
+    if method is not None:
+        check_choice(method, "method", sorted(METHODS))
     choice = None
     if tolerance is not None:
         if knobs:
@@ -77,10 +103,11 @@ def render(
         method, knobs = choice.method, dict(choice.knobs)
         if choice.as_mesh:
             scene = as_mesh_scene(scene, choice.as_mesh["subdivisions"])
+    elif margin != DEFAULT_MARGIN:
+        raise ValueError("`margin` applies only with `tolerance`")
     if method is None:
         method = DEFAULT_METHOD.get(type(scene).__name__, "twopass")
-    if method not in METHODS:
-        raise ValueError(f"`method` must be one of {sorted(METHODS)}, got {method!r}")
+    check_knob_names(method, knobs)
     result = METHODS[method](scene, **knobs)
     if return_stats:
         stats: dict[str, Array] = {"missed_flux_fraction": result.missed_flux_fraction}

@@ -29,6 +29,8 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
+from ._checks import check_bool, check_choice, check_number, check_real_array, check_shape
+
 BOUNDARY_MODES = ("periodic", "clamp", "extrapolate")
 
 
@@ -37,18 +39,15 @@ def _is_concrete(x) -> bool:
 
 
 def _as_float_array(value, name: str) -> Array:
+    """`value` (possibly traced) as a float array; strings, bools and complex numbers
+    (which would lose their imaginary part) are refused."""
     arr: Any
     if isinstance(value, jax.Array):
         arr = value
+        if not any(jnp.issubdtype(arr.dtype, k) for k in (jnp.integer, jnp.floating)):
+            raise ValueError(f"`{name}` must be real numbers, got dtype {arr.dtype}")
     else:
-        try:
-            arr = np.asarray(value)
-        except Exception as err:  # noqa: BLE001 - re-raised with the argument's name
-            raise ValueError(f"`{name}` must be array-like, got {type(value).__name__}") from err
-        if arr.dtype == object or not np.issubdtype(arr.dtype, np.number):
-            raise ValueError(f"`{name}` must be numeric, got dtype {arr.dtype}")
-    if jnp.issubdtype(arr.dtype, jnp.complexfloating):  # would lose the imaginary part
-        raise ValueError(f"`{name}` must be real, got complex dtype {arr.dtype}")
+        arr = check_real_array(value, name)
     if not jnp.issubdtype(arr.dtype, jnp.floating):
         arr = jnp.asarray(arr, dtype=jnp.result_type(float))
     return jnp.asarray(arr)
@@ -70,6 +69,9 @@ def _check_extent(extent, name: str) -> Array:
             raise ValueError(
                 f"`{name}` must have x_max > x_min and y_max > y_min, got {e.tolist()}"
             )
+        with np.errstate(over="ignore"):
+            if not np.all(np.isfinite(e[1::2] - e[0::2])):  # in the extent's own dtype
+                raise ValueError(f"`{name}` is too wide for {e.dtype}: {e.tolist()}")
     return ext
 
 
@@ -119,13 +121,13 @@ class HeightField(eqx.Module):
         if h.shape[0] < 2 or h.shape[1] < 2:
             raise ValueError(f"`heights` needs at least 2x2 samples, got shape {h.shape}")
         _check_finite(h, "heights")
-        if boundary not in BOUNDARY_MODES:
-            raise ValueError(f"`boundary` must be one of {BOUNDARY_MODES}, got {boundary!r}")
+        check_choice(boundary, "boundary", BOUNDARY_MODES)
         self.heights = h
         self.extent = _check_extent(extent, "extent")
-        if isinstance(rotation, (int, float)) and not isinstance(rotation, bool):
-            rotation = np.asarray(rotation, dtype=h.dtype)
         rot = _as_float_array(rotation, "rotation")
+        if isinstance(rotation, (int, float)):  # a Python number: the dtype of the heights
+            with np.errstate(over="ignore"):
+                rot = jnp.asarray(np.asarray(rotation, dtype=h.dtype))
         if rot.shape != ():
             raise ValueError(f"`rotation` must be a scalar (radians), got shape {rot.shape}")
         _check_finite(rot, "rotation")
@@ -161,6 +163,13 @@ class DirectionalLight(eqx.Module):
             norm = float(np.linalg.norm(dn))
             if norm == 0.0:
                 raise ValueError("`direction` must be non-zero")
+            with np.errstate(over="ignore", under="ignore"):  # `unit_direction`'s dtype
+                own = float(np.sqrt(np.sum(np.square(np.asarray(d)))))
+            if not (math.isfinite(own) and own > 0.0):
+                raise ValueError(
+                    f"`direction` {dn.tolist()} has a length that over- or underflows "
+                    f"{d.dtype}: scale it towards unit length"
+                )
             if not dn[2] / norm < -1e-6:
                 raise ValueError(
                     f"`direction` is the direction of travel and must point down (z < 0), "
@@ -172,9 +181,11 @@ class DirectionalLight(eqx.Module):
     def from_angles(cls, zenith_deg: float, azimuth_deg: float = 0.0) -> DirectionalLight:
         """Light arriving at `zenith_deg` from vertical, travelling towards `azimuth_deg`
         (measured from +x towards +y)."""
-        if not 0.0 <= zenith_deg < 90.0:
-            raise ValueError(f"`zenith_deg` must be in [0, 90), got {zenith_deg}")
-        z, a = math.radians(zenith_deg), math.radians(azimuth_deg)
+        zenith = check_number(zenith_deg, "zenith_deg", low=0.0, high=90.0, high_open=True)
+        z = math.radians(zenith)
+        a = math.radians(check_number(azimuth_deg, "azimuth_deg"))
+        if not -math.cos(z) < -1e-6:  # what `DirectionalLight` accepts as going down
+            raise ValueError(f"`zenith_deg` {zenith} is too close to 90 (grazing light)")
         return cls([math.sin(z) * math.cos(a), math.sin(z) * math.sin(a), -math.cos(z)])
 
     @property
@@ -196,15 +207,7 @@ class PlaneReceiver(eqx.Module):
 
     def __init__(self, extent, shape: Sequence[int]):
         self.extent = _check_extent(extent, "extent")
-        whole = (int, np.integer)
-        if isinstance(shape, (str, bytes)) or not isinstance(shape, Sequence | np.ndarray):
-            raise ValueError(f"`shape` must be (rows, cols), got {shape!r}")
-        if any(isinstance(v, bool) or not isinstance(v, whole) for v in shape):
-            raise ValueError(f"`shape` must be two whole numbers (rows, cols), got {shape!r}")
-        shp = tuple(int(v) for v in shape)
-        if len(shp) != 2 or min(shp) < 1:
-            raise ValueError(f"`shape` must be (rows, cols) with at least one pixel, got {shape!r}")
-        self.shape = shp  # type: ignore[assignment]
+        self.shape = check_shape(shape, "shape")
 
     @property
     def pixel_size(self) -> tuple[Array, Array]:
@@ -240,28 +243,40 @@ def _check_surface_above(surface, depth, depth_name: str, failure: str) -> None:
             )
 
 
+# Indices of refraction accepted (relative indices of real media lie well inside), and
+# the most channels (indices) one scene may hold: each is a channel of every image.
+IOR_RANGE = (0.01, 100.0)
+MAX_CHANNELS = 64
+
+
 def _check_ior(ior) -> float | tuple[float, ...]:
-    if isinstance(ior, (jax.Array, np.ndarray)) and ior.ndim == 0:
-        ior = float(ior)
-    if isinstance(ior, (str, bytes, bool)):  # a string would split into characters
+    """A number gives a float, a sequence (list, tuple, 1-D array) a tuple of floats."""
+    items = ior if isinstance(ior, (list, tuple)) else [ior]
+    if any(isinstance(v, (bool, np.bool_)) for v in items):  # 1.0 in disguise
         raise ValueError(f"`ior` must be a number or a sequence of numbers, got {ior!r}")
-    if isinstance(ior, (int, float)):
-        values: tuple[float, ...] = (float(ior),)
-    else:
-        if isinstance(ior, Sequence) and any(isinstance(v, (str, bytes, bool)) for v in ior):
-            raise ValueError(f"`ior` must hold numbers, got {ior!r}")
-        try:
-            values = tuple(float(v) for v in ior)
-        except (TypeError, jax.errors.ConcretizationTypeError) as err:
-            raise ValueError(
-                f"`ior` must be a number or a sequence of numbers (static), got {ior!r}"
-            ) from err
-        if not values:
-            raise ValueError("`ior` must hold at least one index of refraction")
-    for v in values:
-        if not (math.isfinite(v) and v > 0):
-            raise ValueError(f"`ior` values must be finite and positive, got {values}")
-    return values[0] if isinstance(ior, (int, float)) else values
+    arr = check_real_array(ior, "ior")  # traced values are refused here: `ior` is static
+    if arr.ndim > 1 or not 1 <= arr.size <= MAX_CHANNELS:
+        raise ValueError(
+            f"`ior` must be a number or a sequence of 1 to {MAX_CHANNELS} numbers, got {ior!r}"
+        )
+    values = tuple(float(v) for v in arr.ravel())
+    low, high = IOR_RANGE
+    if not all(low <= v <= high for v in values):
+        raise ValueError(f"`ior` values must be in [{low}, {high}], got {values}")
+    return values[0] if arr.ndim == 0 else values
+
+
+def _check_sequence_of(items, name: str, kind: type) -> tuple:
+    """`items` (a list or tuple of `kind` objects) as a tuple, else a `ValueError`."""
+    if not isinstance(items, (list, tuple)):
+        raise ValueError(
+            f"`{name}` must be a list or tuple of {kind.__name__} objects, got "
+            f"{type(items).__name__}"
+        )
+    for k, item in enumerate(items):
+        if not isinstance(item, kind):
+            raise ValueError(f"`{name}[{k}]` must be a {kind.__name__}, got {type(item).__name__}")
+    return tuple(items)
 
 
 class WaterScene(eqx.Module):
@@ -314,7 +329,7 @@ class WaterScene(eqx.Module):
         self.receiver = receiver
         self.rest_depth = _check_positive_scalar(rest_depth, "rest_depth")
         self.ior = _check_ior(ior)
-        self.fresnel = bool(fresnel)
+        self.fresnel = check_bool(fresnel, "fresnel")
         _check_surface_above(surface, self.rest_depth, "rest_depth", "reaches the ground")
 
     @property
@@ -358,6 +373,10 @@ class PointLight(eqx.Module):
         if p.shape != (3,):
             raise ValueError(f"`position` must have shape (3,), got {p.shape}")
         _check_finite(p, "position")
+        if _is_concrete(p) and not float(p[2]) > 0.0:
+            raise ValueError(
+                f"`position` must be above the receiver plane z = 0, got z = {float(p[2])}"
+            )
         self.position = p
         self.intensity = _check_positive_scalar(intensity, "intensity")
 
@@ -432,7 +451,7 @@ class LensScene(eqx.Module):
         self.thickness = _check_positive_scalar(thickness, "thickness")
         self.throw = _check_positive_scalar(throw, "throw")
         self.ior = _check_ior(ior)
-        self.fresnel = bool(fresnel)
+        self.fresnel = check_bool(fresnel, "fresnel")
         _check_surface_above(surface, self.thickness, "thickness", "dips through the bottom face")
         if isinstance(light, PointLight) and _is_concrete(light.position):
             top = float(self.throw) + float(self.thickness)

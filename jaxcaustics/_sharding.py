@@ -21,7 +21,7 @@ from __future__ import annotations
 
 import dataclasses
 import inspect
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterable, Sequence
 from concurrent.futures import ThreadPoolExecutor
 
 import equinox as eqx
@@ -29,6 +29,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 from jax.sharding import Mesh, NamedSharding, PartitionSpec
+
+from ._checks import check_bool, check_int
 
 MESH_AXIS = "batch"
 
@@ -40,7 +42,7 @@ def resolve_devices(devices: Sequence[jax.Device] | int | None = None) -> list[j
     available = jax.devices()
     if devices is None:
         return list(available)
-    if isinstance(devices, bool):
+    if isinstance(devices, bool) or not isinstance(devices, int | np.integer | Iterable):
         raise ValueError(f"`devices` must be None, an int or a list of devices, got {devices!r}")
     if isinstance(devices, int | np.integer):
         if not 1 <= int(devices) <= len(available):
@@ -53,6 +55,8 @@ def resolve_devices(devices: Sequence[jax.Device] | int | None = None) -> list[j
         raise ValueError("`devices` must not be empty")
     if not all(isinstance(d, jax.Device) for d in devices):
         raise ValueError("`devices` must hold jax.Device objects")
+    if len(set(devices)) != len(devices):
+        raise ValueError("`devices` must not list a device twice")
     return devices
 
 
@@ -113,14 +117,16 @@ def map_sharded(
     host); each computes the shares of the devices it drives and the results are gathered
     with `process_allgather` (`gather_to_host`), so every process returns all of them.
     """
+    if not callable(fn):
+        raise ValueError(f"`fn` must be a function fn(shared, item), got {type(fn).__name__}")
     devices = resolve_devices(devices)
     n = _batch_size(batch, "batch")
     n_dev = len(devices)
-    if chunk is None:
-        chunk = n_dev
-    if isinstance(chunk, bool) or not isinstance(chunk, int | np.integer) or chunk < 1:
-        raise ValueError(f"`chunk` must be a positive int, got {chunk!r}")
-    chunk = -(-int(chunk) // n_dev) * n_dev
+    chunk = check_int(n_dev if chunk is None else chunk, "chunk", 1)
+    progress = check_bool(progress, "progress")
+    if desc is not None and not isinstance(desc, str):
+        raise ValueError(f"`desc` must be None or a string, got {type(desc).__name__}")
+    chunk = -(-chunk // n_dev) * n_dev
     chunk = min(chunk, -(-n // n_dev) * n_dev)
     padded = -(-n // chunk) * chunk
 
@@ -253,6 +259,8 @@ def stack_scenes(scenes: Sequence):
     **Returns:** a scene of the same type with arrays of shape ``(len(scenes), ...)``.
     Raises a `ValueError` naming the first scene (``scenes[i]``) and field that differ.
     """
+    if isinstance(scenes, eqx.Module) or not hasattr(scenes, "__iter__"):
+        raise ValueError(f"`scenes` must be a sequence of scenes, got {type(scenes).__name__}")
     scenes = list(scenes)
     if not scenes:
         raise ValueError("`scenes` must hold at least one scene")
@@ -317,6 +325,10 @@ def _default(method_fn: Callable, name: str):
     return inspect.signature(method_fn).parameters[name].default
 
 
+def _is_auto(value) -> bool:
+    return isinstance(value, str) and value == "auto"
+
+
 def _resolve_auto_knobs(scenes, method: str, method_fn: Callable, knobs: dict) -> dict:
     """Knobs that ``"auto"`` sizes from concrete scene values (the two-pass window, the
     triangles' window) become the largest over the batch, so one program renders all."""
@@ -324,7 +336,7 @@ def _resolve_auto_knobs(scenes, method: str, method_fn: Callable, knobs: dict) -
     traced = any(isinstance(x, jax.core.Tracer) for x in jax.tree.leaves(scenes))
     if method == "twopass":
         names = ("samples_x", "channels_y")
-        if any(knobs.get(k, _default(method_fn, k)) == "auto" for k in names):
+        if any(_is_auto(knobs.get(k, _default(method_fn, k))) for k in names):
             if traced:
                 raise ValueError(
                     "samples_x='auto' needs concrete scene values; under jit/grad pass ints"
@@ -337,7 +349,7 @@ def _resolve_auto_knobs(scenes, method: str, method_fn: Callable, knobs: dict) -
             knobs["samples_x"], knobs["channels_y"] = (int(v) for v in windows.max(axis=0))
     elif method == "triangles":
         visibility = knobs.get("visibility", _default(method_fn, "visibility"))
-        if knobs.get("window", _default(method_fn, "window")) == "auto" and visibility == "exact":
+        if _is_auto(knobs.get("window", _default(method_fn, "window"))) and visibility == "exact":
             if traced:
                 raise ValueError(
                     "window='auto' needs concrete scene values; under jit/grad pass an int"
@@ -346,7 +358,9 @@ def _resolve_auto_knobs(scenes, method: str, method_fn: Callable, knobs: dict) -
 
             grid = _check_grid(knobs.get("photons", _default(method_fn, "photons")))
             hit = knobs.get("hit_iterations", _default(method_fn, "hit_iterations"))
-            extra = {} if knobs.get("batch_size") is None else {"batch_size": knobs["batch_size"]}
+            extra = {
+                k: knobs[k] for k in ("batch_size", "memory_limit") if knobs.get(k) is not None
+            }
             knobs["window"] = max(
                 triangle_window(trace_photons(s, grid, hit, **extra), s.receiver)
                 for s in unstack_scenes(scenes)
@@ -412,8 +426,12 @@ def render_batch(
     along the batch); differentiable with respect to the scenes' arrays. `gather_to_host`
     copies it to NumPy (on every process, when the devices span several hosts).
     """
-    from ._render import DEFAULT_METHOD, METHODS
+    from ._render import DEFAULT_METHOD, METHODS, check_knob_names
 
+    if method is not None:  # checked before the scenes are stacked (that compiles)
+        if not isinstance(method, str) or method not in METHODS:
+            raise ValueError(f"`method` must be one of {sorted(METHODS)}, got {method!r}")
+        check_knob_names(method, knobs)
     if isinstance(scenes, list | tuple):
         scenes = stack_scenes(scenes)
     if not isinstance(scenes, eqx.Module):
@@ -421,8 +439,7 @@ def render_batch(
     n = _batch_size(scenes)
     if method is None:
         method = DEFAULT_METHOD.get(type(scenes).__name__, "twopass")
-    if method not in METHODS:
-        raise ValueError(f"`method` must be one of {sorted(METHODS)}, got {method!r}")
+        check_knob_names(method, knobs)
     devices = resolve_devices(devices)
     per_device = _per_device(per_device, devices)
     knobs = _resolve_auto_knobs(scenes, method, METHODS[method], knobs)

@@ -36,8 +36,10 @@ import numpy as np
 import optimistix as optx
 from jaxtyping import Array, Float, Int
 
+from ._checks import check_array, check_int, check_number
 from ._ellipsoid import ExitRays
 from ._light_view import orthonormal_basis
+from ._raster import check_fits, check_memory_limit
 from ._scene import _as_float_array, _check_finite, _is_concrete
 from ._spot_lights import SpotLights
 
@@ -134,10 +136,18 @@ def ray_set(origin, direction, energy, *, spacing=None, centre=None, size=None) 
         )
     if energy.shape != (n,):
         raise ValueError(f"`energy` must have shape ({n},), got {energy.shape}")
+    if n == 0:
+        raise ValueError("`origin` must hold at least one ray, got shape (0, 3)")
     for name, arr in (("origin", origin), ("direction", direction), ("energy", energy)):
         _check_finite(arr, name)
     if _is_concrete(energy) and np.any(np.asarray(energy) < 0):
         raise ValueError("`energy` must be >= 0")
+    if _is_concrete(direction) and _is_concrete(energy):
+        still = (np.sum(np.asarray(direction) ** 2, axis=-1) == 0) & (np.asarray(energy) > 0)
+        if np.any(still):
+            raise ValueError(
+                f"`direction` must be non-zero for rays with energy > 0 (ray {np.argmax(still)})"
+            )
     dtype = jnp.result_type(origin.dtype, direction.dtype, energy.dtype)
     origin, direction, energy = (x.astype(dtype) for x in (origin, direction, energy))
     norm = jnp.linalg.norm(direction, axis=-1, keepdims=True)
@@ -201,26 +211,89 @@ def as_ray_set(rays: Any) -> RaySet:
     )
 
 
-def _check_int(value, name: str, low: int = 1) -> int:
-    if isinstance(value, bool) or not isinstance(value, int | np.integer) or value < low:
-        raise ValueError(f"`{name}` must be an integer >= {low}, got {value!r}")
-    return int(value)
-
-
 def _check_float(value, name: str, *, low: float, high: float = math.inf, closed: bool = False):
-    """A Python/NumPy real in ``(low, high)`` (``(low, high]`` if `closed`); a traced
-    value passes unchecked."""
+    """A finite real number in ``(low, high)`` (``(low, high]`` if `closed`); bools and
+    strings are refused; a traced value passes unchecked."""
     if not _is_concrete(value):
         return value
-    try:
-        x = float(value)
-    except (TypeError, ValueError) as err:
-        raise ValueError(f"`{name}` must be a real number, got {value!r}") from err
-    ok = low < x and (x <= high if closed else x < high)
-    if not ok:
-        upper = f" and {'<=' if closed else '<'} {high}" if math.isfinite(high) else ""
-        raise ValueError(f"`{name}` must be > {low}{upper}, got {value!r}")
-    return x
+    return check_number(value, name, low=low, high=high, low_open=True, high_open=not closed)
+
+
+MAX_CELLS = 1290
+"""Most `cells` per side of the rasterisation grid: ``cells^3`` cells indexed by int32."""
+
+MAX_LOOP = 2**31 - 1
+"""Most iterations of a loop counted by an int32 (`axis_iterations`, `fit_steps`)."""
+
+FIT_RAY_FLOATS = 224
+"""Numbers one ray takes in the fit (its arrays and XLA's temporaries: 1708 bytes a ray
+measured in float64 at 65536 rays, plus 56 of input), for `fit_bytes`."""
+
+
+def fit_bytes(
+    rays: int, dtype, *, max_lights=16, resolution=64, cells=32, splat_window=8, chunk=8192
+) -> int:
+    """Estimated memory of `fit_spot_lights` on `rays` rays of `dtype`, bytes: the rays
+    (`FIT_RAY_FLOATS` numbers each), the ``cells^3`` grid, a splat chunk of
+    ``min(chunk, rays) x splat_window^2`` footprints (8 numbers a pixel) and three copies
+    of the ``max_lights x resolution^2`` images (the loop's carry and its update)."""
+    numbers = (
+        FIT_RAY_FLOATS * rays
+        + cells**3
+        + 8 * min(chunk, rays) * splat_window**2
+        + 3 * max_lights * resolution**2
+    )
+    return numbers * jnp.dtype(dtype).itemsize
+
+
+def check_fit_knobs(**given) -> dict:
+    """The knobs of `fit_spot_lights` (its defaults for those not given), checked: a
+    `ValueError` names a bad one, or `fit_knobs` if one is not a knob of the fit (callers
+    that fit later, `precompute_spot_lights`, check them before any work)."""
+    import inspect
+
+    defaults = {
+        name: p.default
+        for name, p in inspect.signature(fit_spot_lights).parameters.items()
+        if p.kind is p.KEYWORD_ONLY and name != "memory_limit"
+    }
+    unknown = sorted(set(given) - set(defaults))
+    if unknown:
+        raise ValueError(
+            f"`fit_knobs` holds {unknown}, not knobs of fit_spot_lights (known: {sorted(defaults)})"
+        )
+    k = {**defaults, **given}
+    knobs = {
+        "max_lights": check_int(k["max_lights"], "max_lights", 1),
+        "energy_fraction": _check_float(
+            k["energy_fraction"], "energy_fraction", low=0.0, high=1.0, closed=True
+        ),
+        "resolution": check_int(k["resolution"], "resolution", 8),
+        "cells": check_int(k["cells"], "cells", 1, MAX_CELLS),
+        "angle_threshold_deg": _check_float(
+            k["angle_threshold_deg"], "angle_threshold_deg", low=0.0, high=90.0
+        ),
+        "axis_iterations": check_int(k["axis_iterations"], "axis_iterations", 1, MAX_LOOP),
+        "fit_steps": check_int(k["fit_steps"], "fit_steps", 1, MAX_LOOP),
+        "splat_window": check_int(k["splat_window"], "splat_window", 1),
+        "chunk": check_int(k["chunk"], "chunk", 1),
+    }
+    for name in ("distance_threshold", "dismiss_threshold", "splat_radius"):
+        value = k[name]
+        knobs[name] = None if value is None else _check_float(value, name, low=0.0)
+    return knobs
+
+
+def _check_fit_memory(count: int, dtype, knobs: dict, memory_limit: int) -> None:
+    """Refuse a fit of `count` rays whose `fit_bytes` exceed `memory_limit`."""
+    sizes = {n: knobs[n] for n in ("max_lights", "resolution", "cells", "splat_window", "chunk")}
+    check_fits(
+        fit_bytes(count, dtype, **sizes),
+        memory_limit,
+        f"fitting spot lights to {count} rays",
+        "lower the number of `rays`, `max_lights`, `resolution`, `cells`, `splat_window` "
+        "or `chunk`",
+    )
 
 
 # ---------------------------------------------------------------------------------------
@@ -442,6 +515,15 @@ def _refine_axis(origin, direction, energy, point, axis, distance, cos_angle, it
     return point, axis, member, it
 
 
+def check_refine_knobs(distance_threshold, angle_threshold_deg, iterations) -> tuple:
+    """The knobs of `refine_axis`, checked (a traced threshold passes unchecked)."""
+    return (
+        _check_float(distance_threshold, "distance_threshold", low=0.0),
+        _check_float(angle_threshold_deg, "angle_threshold_deg", low=0.0, high=180.0, closed=True),
+        check_int(iterations, "iterations", 1, MAX_LOOP),
+    )
+
+
 def refine_axis(
     origin,
     direction,
@@ -462,13 +544,27 @@ def refine_axis(
     assignment unchanged (the axis is then a fixed point) or after `iterations`.
 
     - `origin`, `direction`: ``(R, 3)`` rays (metres; unit directions).
-    - `energy`: ``(R,)`` their energy; rays with 0 are never assigned.
+    - `energy`: ``(R,)`` their energy (>= 0); rays with 0 are never assigned.
     - `axis_point`, `axis_direction`: ``(3,)`` the starting axis (unit direction).
-    - `distance_threshold`: metres; `angle_threshold_deg`: degrees; `iterations`: static.
+    - `distance_threshold`: metres (> 0); `angle_threshold_deg`: degrees, in ``(0, 180]``;
+      `iterations`: static int >= 1.
 
     **Returns** ``(axis_point (3,), axis_direction (3,), member_mask (R,) bool)``: the
     final axis and the rays assigned to it.
     """
+    origin = check_array(origin, "origin", (None, 3))
+    r = origin.shape[0]
+    direction = check_array(direction, "direction", (r, 3))
+    energy = check_array(energy, "energy", (r,))
+    axis_point = check_array(axis_point, "axis_point", (3,))
+    axis_direction = check_array(axis_direction, "axis_direction", (3,))
+    if _is_concrete(energy) and np.any(np.asarray(energy) < 0):
+        raise ValueError("`energy` must be >= 0")
+    if _is_concrete(axis_direction) and not np.any(np.asarray(axis_direction)):
+        raise ValueError("`axis_direction` must be a non-zero (unit) vector")
+    distance_threshold, angle_threshold_deg, iterations = check_refine_knobs(
+        distance_threshold, angle_threshold_deg, iterations
+    )
     origin, direction, energy, axis_point, axis_direction = _floats(
         origin, direction, energy, axis_point, axis_direction
     )
@@ -938,6 +1034,7 @@ def fit_spot_lights(
     splat_radius: float | None = None,
     splat_window: int = 8,
     chunk: int = 8192,
+    memory_limit: int | None = None,
 ) -> tuple[SpotLights, FitInfo]:
     """Caustic spot lights for the rays leaving a caustic object (Liu et al. 2008, 3.1).
 
@@ -960,39 +1057,46 @@ def fit_spot_lights(
     - `distance_threshold`: metres (default ``DISTANCE_THRESHOLD x size``);
       `angle_threshold_deg`: in ``(0, 90)``; `dismiss_threshold`: metres (default: the
       distance threshold); `splat_radius`: metres (default ``3 x spacing``).
+    - `memory_limit`: bytes the fit may take (default 1 GiB; estimated by `fit_bytes`):
+      more rays, or larger `max_lights`, `resolution`, `cells`, `splat_window` or `chunk`,
+      raise a `ValueError` before anything is compiled.
 
     Jit-compiled (once per set of static knobs); it may itself be jitted or vmapped over
     a leading batch axis of the ray arrays.
 
     **Returns** ``(SpotLights, FitInfo)`` with ``K = max_lights``.
     """
-    knobs = (
-        _check_int(cells, "cells"),
-        _check_int(axis_iterations, "axis_iterations"),
-        _check_int(fit_steps, "fit_steps"),
-        _check_int(resolution, "resolution", 8),
-        _check_int(splat_window, "splat_window"),
-        _check_int(chunk, "chunk"),
+    k = check_fit_knobs(
+        max_lights=max_lights,
+        energy_fraction=energy_fraction,
+        resolution=resolution,
+        cells=cells,
+        distance_threshold=distance_threshold,
+        angle_threshold_deg=angle_threshold_deg,
+        dismiss_threshold=dismiss_threshold,
+        axis_iterations=axis_iterations,
+        fit_steps=fit_steps,
+        splat_radius=splat_radius,
+        splat_window=splat_window,
+        chunk=chunk,
     )
-    max_lights = _check_int(max_lights, "max_lights")
-    fraction = _check_float(energy_fraction, "energy_fraction", low=0.0, high=1.0, closed=True)
-    angle = _check_float(angle_threshold_deg, "angle_threshold_deg", low=0.0, high=90.0)
-    optional = {
-        "distance_threshold": distance_threshold,
-        "dismiss_threshold": dismiss_threshold,
-        "splat_radius": splat_radius,
-    }
-    for name, value in optional.items():
-        if value is not None:
-            optional[name] = _check_float(value, name, low=0.0)
+    memory_limit = check_memory_limit(memory_limit)
+    origin = rays[0] if isinstance(rays, tuple | list) and rays else getattr(rays, "origin", None)
+    if len(getattr(origin, "shape", ())) == 2:  # before the rays are converted (work too)
+        kind = np.dtype(origin.dtype).kind
+        _check_fit_memory(origin.shape[0], origin.dtype if kind == "f" else float, k, memory_limit)
     rays = as_ray_set(rays)
+    _check_fit_memory(rays.origin.shape[0], rays.origin.dtype, k, memory_limit)
+    knobs = tuple(
+        k[n] for n in ("cells", "axis_iterations", "fit_steps", "resolution", "splat_window")
+    ) + (k["chunk"],)
     return _fit_jit(
         rays,
-        fraction,
-        optional["distance_threshold"],
-        angle,
-        optional["dismiss_threshold"],
-        optional["splat_radius"],
+        k["energy_fraction"],
+        k["distance_threshold"],
+        k["angle_threshold_deg"],
+        k["dismiss_threshold"],
+        k["splat_radius"],
         knobs=knobs,
-        max_lights=max_lights,
+        max_lights=k["max_lights"],
     )

@@ -67,12 +67,17 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Bool, Float, Int
 
+from ._checks import check_array, check_bool, check_int, check_number
 from ._light_view import orthonormal_basis
-from ._sharding import map_sharded, resolve_devices
+from ._raster import check_fits, check_memory_limit
+from ._sharding import _per_device, map_sharded, resolve_devices
 from ._spot_lights import SpotLights, sample_light_plane
 
 DEFAULT_MATCH_FRACTION = 0.25
 """Default `match_threshold`, as a fraction of the object's size."""
+
+MAX_SUBDIVISIONS = 6
+"""Most subdivisions of the icosahedron of directions (6: 40962 directions)."""
 
 _KARCHER_ITERATIONS = 4
 _SAVE_FORMAT = 1
@@ -95,10 +100,7 @@ def icosphere_directions(subdivisions: int = 2) -> tuple[np.ndarray, np.ndarray]
     towards the light; the light travels along ``-vertex``) and ``(F, 3)`` int32 vertex
     indices, counter-clockwise seen from outside (normals point outwards).
     """
-    if isinstance(subdivisions, bool) or not isinstance(subdivisions, int | np.integer):
-        raise ValueError(f"`subdivisions` must be an int, got {type(subdivisions).__name__}")
-    if not 0 <= subdivisions <= 6:
-        raise ValueError(f"`subdivisions` must be in [0, 6], got {subdivisions}")
+    subdivisions = check_int(subdivisions, "subdivisions", 0, MAX_SUBDIVISIONS)
     import trimesh
 
     mesh = trimesh.creation.icosphere(subdivisions=int(subdivisions), radius=1.0)
@@ -225,6 +227,7 @@ class SpotLightTable(eqx.Module):
 
     def save(self, path: str | os.PathLike) -> None:
         """Write the table to an ``.npz`` file (numpy adds the suffix if `path` lacks it)."""
+        path = _check_path(path)
         arrays = {"format": np.asarray(_SAVE_FORMAT)}
         for field in dataclasses.fields(self):
             value = getattr(self, field.name)
@@ -233,11 +236,15 @@ class SpotLightTable(eqx.Module):
                     arrays[f"lights.{name}"] = np.asarray(getattr(value, name))
             else:
                 arrays[field.name] = np.asarray(value)
-        np.savez_compressed(path, **arrays)
+        try:
+            np.savez_compressed(path, **arrays)
+        except OSError as err:
+            raise ValueError(f"`path` cannot be written: {err}") from err
 
     @classmethod
     def load(cls, path: str | os.PathLike) -> SpotLightTable:
         """Read a table written by `save`."""
+        path = _check_path(path)
         try:
             data = np.load(path)
         except (OSError, ValueError) as err:
@@ -252,6 +259,13 @@ class SpotLightTable(eqx.Module):
                 if f.name != "lights"
             }
         return cls(lights=lights, **kwargs)
+
+
+def _check_path(path):
+    """`path` if it is a file name (a string or an `os.PathLike`), else a `ValueError`."""
+    if not isinstance(path, str | os.PathLike):
+        raise ValueError(f"`path` must be a file name, got {type(path).__name__}")
+    return path
 
 
 def _stacked_spot_lights(fields: dict) -> SpotLights:
@@ -410,15 +424,11 @@ def interpolate_spot_lights(table: SpotLightTable, direction) -> SpotLights:
     active if its triple is and some painted corner has a non-zero weight (so at a vertex
     exactly that vertex's lights are active).
     """
-    direction = jnp.asarray(direction)
-    if direction.shape != (3,):
-        raise ValueError(f"`direction` must have shape (3,), got {direction.shape}")
-    if not jnp.issubdtype(direction.dtype, jnp.floating):
-        direction = direction.astype(table.directions.dtype)
-    if not isinstance(direction, jax.core.Tracer):
-        d = np.asarray(direction)
-        if not np.all(np.isfinite(d)) or np.linalg.norm(d) == 0:
-            raise ValueError("`direction` must be finite and non-zero")
+    if not isinstance(table, SpotLightTable):
+        raise ValueError(f"`table` must be a SpotLightTable, got {type(table).__name__}")
+    direction = check_array(direction, "direction", (3,))
+    if not isinstance(direction, jax.core.Tracer) and not np.any(np.asarray(direction)):
+        raise ValueError("`direction` must be finite and non-zero")
     return _interpolate(table, direction.astype(table.directions.dtype))
 
 
@@ -731,18 +741,18 @@ def build_spot_light_table(
 # Precomputation
 
 
-def _fit_direction(scene, direction, *, rays_per_axis, fit_knobs):
+def _fit_direction(scene, direction, *, rays_per_axis, fit_knobs, memory_limit=None):
     """The CSL set for a light travelling along `direction` ``(3,)``, and the object's
     centre and size."""
     from ._ellipsoid import trace_exit_rays
     from ._spot_light_fit import fit_spot_lights
 
-    rays = trace_exit_rays(scene, rays_per_axis, direction=direction)
-    lights, _ = fit_spot_lights(rays, **fit_knobs)
+    rays = trace_exit_rays(scene, rays_per_axis, direction=direction, memory_limit=memory_limit)
+    lights, _ = fit_spot_lights(rays, memory_limit=memory_limit, **fit_knobs)
     return lights, rays.centre, rays.size
 
 
-def _track_edge(scene, item, *, steps, rays_per_axis, refine_knobs):
+def _track_edge(scene, item, *, steps, rays_per_axis, refine_knobs, memory_limit=None):
     """Track the axes of one light set while the light moves from ``item["s0"]`` to
     ``item["s1"]`` (vertex directions) in `steps` slerp steps (Sect. 4.2).
 
@@ -760,7 +770,7 @@ def _track_edge(scene, item, *, steps, rays_per_axis, refine_knobs):
     def step(carry, t):
         origin, axis = carry
         s = slerp(item["s0"], item["s1"], t)
-        rays = trace_exit_rays(scene, rays_per_axis, direction=-s)
+        rays = trace_exit_rays(scene, rays_per_axis, direction=-s, memory_limit=memory_limit)
 
         def one(pool, light):
             old_origin, old_axis, active = light
@@ -786,10 +796,34 @@ def _track_edge(scene, item, *, steps, rays_per_axis, refine_knobs):
     return origin, axis
 
 
-def _check_count(value, name: str, minimum: int = 1) -> int:
-    if isinstance(value, bool) or not isinstance(value, int | np.integer) or value < minimum:
-        raise ValueError(f"`{name}` must be an int >= {minimum}, got {value!r}")
-    return int(value)
+_REFINE_KNOBS = {"distance_threshold": 1.0, "angle_threshold_deg": 60.0, "iterations": 100}
+"""The knobs of `refine_axis` (with placeholder values, to check a partial dict)."""
+
+
+def _check_table_memory(
+    subdivisions, rays_per_axis, tracking_rays, tracking_steps, knobs, *, in_flight, memory_limit
+) -> None:
+    """Refuse a precomputation whose work in flight on a device does not fit in
+    `memory_limit`: `in_flight` fits (`fit_bytes`) or edge trackings (`tracking_rays^2`
+    rays of `EXIT_RAY_FLOATS` numbers: 21 measured in float64 with `refine_axis`; the
+    `tracking_steps` slerp parameters), and the
+    table's light images (``V x max_lights x resolution^2``, twice: fitted, canonical)."""
+    from ._ellipsoid import EXIT_RAY_FLOATS
+    from ._spot_light_fit import fit_bytes
+
+    itemsize = jnp.dtype(jnp.result_type(float)).itemsize
+    sizes = {n: knobs[n] for n in ("max_lights", "resolution", "cells", "splat_window", "chunk")}
+    fit = fit_bytes(rays_per_axis**2, jnp.result_type(float), **sizes)
+    track = (EXIT_RAY_FLOATS * tracking_rays**2 + tracking_steps) * itemsize
+    directions = 10 * 4**subdivisions + 2
+    table = 2 * directions * knobs["max_lights"] * knobs["resolution"] ** 2 * itemsize
+    check_fits(
+        in_flight * max(fit, track) + table,
+        memory_limit,
+        f"precomputing spot lights for {directions} directions",
+        "lower `rays_per_axis`, `tracking_rays_per_axis`, `tracking_steps`, `subdivisions`, "
+        "`chunk` or the fit's `max_lights`, `resolution`, `cells`",
+    )
 
 
 def _default_refine_knobs(fit_knobs: dict, size: float) -> dict:
@@ -826,6 +860,7 @@ def precompute_spot_lights(
     chunk: int | None = None,
     progress: bool = True,
     per_device: str | None = None,
+    memory_limit: int | None = None,
     **fit_knobs,
 ) -> SpotLightTable:
     """The per-scene phase of Sect. 4: CSL sets for the icosphere's directions, tracked
@@ -850,32 +885,56 @@ def precompute_spot_lights(
     - `match_threshold`: largest axis distance of a match (m); default
       `DEFAULT_MATCH_FRACTION` times the object's size.
     - `refine_knobs`: keyword arguments of `refine_axis` (``distance_threshold``,
-      ``angle_threshold_deg``, ``iterations``); default: the fit's (given in `fit_knobs`
-      or defaulted by `fit_spot_lights`).
+      ``angle_threshold_deg``, ``iterations``); those not given: the fit's (given in
+      `fit_knobs` or defaulted by `fit_spot_lights`).
     - `devices`: devices to shard over (default `jax.devices()`).
     - `chunk`: directions (or directed edges) per batch; default 4 per device.
     - `progress`: tqdm progress bars over the chunks.
     - `per_device`: ``"map"`` (items one after the other on each device; the default on
       CPU) or ``"vmap"`` (vectorised; the default on GPU/TPU); see `map_sharded`.
+    - `memory_limit`: bytes per device (default 1 GiB): the fits and trackings in
+      flight on a device (`fit_bytes` each; one, or a chunk's share with ``"vmap"``) and
+      the table's light images; more raise a `ValueError` before any work.
     - `fit_knobs`: keyword arguments of `fit_spot_lights` (``max_lights``, ...).
     """
-    subdivisions = _check_count(subdivisions, "subdivisions", 0)
-    rays_per_axis = _check_count(rays_per_axis, "rays_per_axis", 2)
-    tracking_steps = _check_count(tracking_steps, "tracking_steps")
+    from ._spot_light_fit import check_fit_knobs, check_refine_knobs
+
+    subdivisions = check_int(subdivisions, "subdivisions", 0, MAX_SUBDIVISIONS)
+    rays_per_axis = check_int(rays_per_axis, "rays_per_axis", 2)
+    tracking_steps = check_int(tracking_steps, "tracking_steps", 1)
     tracking_rays = rays_per_axis if tracking_rays_per_axis is None else tracking_rays_per_axis
-    tracking_rays = _check_count(tracking_rays, "tracking_rays_per_axis", 2)
-    if refine_knobs is not None and not isinstance(refine_knobs, dict):
+    tracking_rays = check_int(tracking_rays, "tracking_rays_per_axis", 2)
+    if match_threshold is not None:
+        match_threshold = check_number(match_threshold, "match_threshold", low=0.0, unit="metres")
+    refine_knobs = {} if refine_knobs is None else refine_knobs
+    if not isinstance(refine_knobs, dict):
         raise ValueError(f"`refine_knobs` must be a dict, got {type(refine_knobs).__name__}")
+    unknown = sorted(set(refine_knobs) - set(_REFINE_KNOBS))
+    if unknown:
+        raise ValueError(f"`refine_knobs` holds {unknown}, not knobs of refine_axis")
+    check_refine_knobs(**{**_REFINE_KNOBS, **refine_knobs})
+    knob_values = check_fit_knobs(**fit_knobs)
+    progress = check_bool(progress, "progress")
     devices = resolve_devices(devices)
-    if chunk is None:
-        chunk = 4 * len(devices)
-    chunk = _check_count(chunk, "chunk")
+    per_device = _per_device(per_device, devices)
+    chunk = check_int(4 * len(devices) if chunk is None else chunk, "chunk", 1)
+    _check_table_memory(
+        subdivisions,
+        rays_per_axis,
+        tracking_rays,
+        tracking_steps,
+        knob_values,
+        in_flight=-(-chunk // len(devices)) if per_device == "vmap" else 1,
+        memory_limit=check_memory_limit(memory_limit),
+    )
 
     directions, faces = icosphere_directions(subdivisions)
     edges = direction_edges(faces)
     dtype = jnp.result_type(float)
     lights, centres, sizes = map_sharded(
-        lambda sc, d: _fit_direction(sc, d, rays_per_axis=rays_per_axis, fit_knobs=fit_knobs),
+        lambda sc, d: _fit_direction(
+            sc, d, rays_per_axis=rays_per_axis, fit_knobs=fit_knobs, memory_limit=memory_limit
+        ),
         scene,
         jnp.asarray(-directions, dtype),
         devices=devices,
@@ -885,7 +944,7 @@ def precompute_spot_lights(
         per_device=per_device,
     )
     centre, size = centres[0], float(sizes[0])
-    knobs = _default_refine_knobs(fit_knobs, size) if refine_knobs is None else refine_knobs
+    knobs = {**_default_refine_knobs(fit_knobs, size), **refine_knobs}
 
     start = np.concatenate([edges[:, 0], edges[:, 1]])  # directed edges: a->b, then b->a
     end = np.concatenate([edges[:, 1], edges[:, 0]])
@@ -898,7 +957,12 @@ def precompute_spot_lights(
     }
     moved_origin, moved_axis = map_sharded(
         lambda sc, it: _track_edge(
-            sc, it, steps=tracking_steps, rays_per_axis=tracking_rays, refine_knobs=knobs
+            sc,
+            it,
+            steps=tracking_steps,
+            rays_per_axis=tracking_rays,
+            refine_knobs=knobs,
+            memory_limit=memory_limit,
         ),
         scene,
         items,

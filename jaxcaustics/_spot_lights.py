@@ -23,8 +23,16 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Bool, Float
 
-from ._ellipsoid import _surface_hit
-from ._scene import _as_float_array, _check_finite, _is_concrete
+from ._checks import check_array, check_bool, check_int, check_number
+from ._ellipsoid import Ellipsoid, _surface_hit
+from ._raster import check_fits, check_memory_limit
+from ._scene import (
+    PlaneReceiver,
+    _as_float_array,
+    _check_finite,
+    _check_sequence_of,
+    _is_concrete,
+)
 
 
 class SpotLights(eqx.Module):
@@ -73,13 +81,22 @@ class SpotLights(eqx.Module):
             if arr.shape != (k,):
                 raise ValueError(f"`{name}` must have shape ({k},), got {arr.shape}")
         image = _as_float_array(image, "image")
-        if image.ndim != 3 or image.shape[0] != k or image.shape[1] != image.shape[2]:
-            raise ValueError(f"`image` must have shape ({k}, N, N), got {image.shape}")
+        if (
+            image.ndim != 3
+            or image.shape[0] != k
+            or image.shape[1] != image.shape[2]
+            or image.shape[1] < 1
+        ):
+            raise ValueError(f"`image` must have shape ({k}, N, N), N >= 1, got {image.shape}")
         if active is None:
             active = jnp.ones((k,), bool)
+        if not isinstance(active, jax.Array):
+            active = np.asarray(active)
+        if active.shape != (k,) or active.dtype != np.bool_:
+            raise ValueError(
+                f"`active` must be booleans of shape ({k},), got {active.dtype} {active.shape}"
+            )
         active = jnp.asarray(active)
-        if active.shape != (k,) or active.dtype != jnp.bool_:
-            raise ValueError(f"`active` must be booleans of shape ({k},), got {active.shape}")
         for name, arr in (("origin", origin), ("axis", axis), ("frame_u", frame_u)):
             _check_finite(arr, name)
         for name, arr in (("beta", beta), ("half_width", half_width), ("image", image)):
@@ -241,6 +258,7 @@ def evaluate_spot_lights(
     max_gain: float = 1e4,
     axis_epsilon: float = 1e-9,
     intensity_correction: bool = True,
+    memory_limit: int | None = None,
 ) -> SpotLightRays:
     """Evaluate caustic spot lights at points (Liu et al. 2008, Sections 2.2 and 2.3).
 
@@ -273,16 +291,25 @@ def evaluate_spot_lights(
     - `axis_epsilon`: smoothing radius around the axis, metres (> 0).
     - `intensity_correction`: apply Eq. 4 (default); ``False`` gives the uncorrected
       rendering of the paper's Fig. 6 (``sigma = 1``).
+    - `memory_limit`: bytes the evaluation may take (default 1 GiB; `point_bytes` per
+      point and light): more points times lights raise a `ValueError` first.
 
     **Returns:** `SpotLightRays` with ``(P, K, 3)`` fields.
     """
-    points = jnp.asarray(points)
-    if points.ndim != 2 or points.shape[-1] != 3:
-        raise ValueError(f"`points` must have shape (P, 3), got {points.shape}")
-    if not max_gain > 0:
-        raise ValueError(f"`max_gain` must be positive, got {max_gain}")
-    if not axis_epsilon > 0:
-        raise ValueError(f"`axis_epsilon` must be positive, got {axis_epsilon}")
+    options = _check_options(lights, max_gain, axis_epsilon, intensity_correction)
+    points = check_array(points, "points", (None, 3))
+    pairs = points.shape[0] * len(lights)
+    check_fits(
+        pairs * point_bytes(points.dtype),
+        check_memory_limit(memory_limit),
+        f"evaluating {len(lights)} lights at {points.shape[0]} points",
+        "lower the number of `points`",
+    )
+    return _evaluate(lights, points, *options)
+
+
+def _evaluate(lights, points, max_gain, axis_epsilon, intensity_correction) -> SpotLightRays:
+    """`evaluate_spot_lights` once its arguments are checked."""
     dtype = jnp.result_type(points.dtype, lights.origin.dtype)
     d = points[:, None, :] - lights.origin[None]  # (P, K, 3)
     z = jnp.sum(d * lights.axis, axis=-1)
@@ -326,10 +353,46 @@ def evaluate_spot_lights(
 # --------------------------------------------------------------------------- shading
 
 
+POINT_FLOATS = 48
+"""Numbers one point takes while it is shaded by one light (the rays' fields and XLA's
+temporaries: 42 measured in float64, rounded up): memory is ``POINT_FLOATS`` times the
+dtype's size per point (`shade_points`, `render_spot_lights`) or per point and light
+(`evaluate_spot_lights`)."""
+
+
+def point_bytes(dtype=jnp.float64) -> int:
+    """Memory of one point (per light for `evaluate_spot_lights`), bytes."""
+    return POINT_FLOATS * jnp.dtype(dtype).itemsize
+
+
+def _check_options(lights, max_gain, axis_epsilon, intensity_correction) -> tuple:
+    """`lights` checked to be a `SpotLights`; ``(max_gain, axis_epsilon,
+    intensity_correction)`` checked and as Python scalars."""
+    if not isinstance(lights, SpotLights):
+        raise ValueError(f"`lights` must be a SpotLights, got {type(lights).__name__}")
+    return (
+        check_number(max_gain, "max_gain", low=0.0, low_open=True),
+        check_number(axis_epsilon, "axis_epsilon", low=0.0, low_open=True, unit="metres"),
+        check_bool(intensity_correction, "intensity_correction"),
+    )
+
+
+def _shading_number(value, name: str, high: float):
+    """`value` unchanged (an array stays a differentiable leaf), once checked to be a
+    number in ``[0, high]`` (unless traced)."""
+    if not isinstance(value, jax.core.Tracer):
+        check_number(value, name, low=0.0, high=high)
+    return value
+
+
 class Lambertian(eqx.Module):
-    """A matte receiver: radiance ``albedo / pi x irradiance`` in every direction."""
+    """A matte receiver: radiance ``albedo / pi x irradiance`` in every direction
+    (`albedo` in ``[0, 1]``)."""
 
     albedo: float = 1.0
+
+    def __init__(self, albedo=1.0):
+        self.albedo = _shading_number(albedo, "albedo", 1.0)
 
 
 class Glossy(eqx.Module):
@@ -339,13 +402,24 @@ class Glossy(eqx.Module):
     (n . h_k)^m``, ``E_k`` the irradiance ray ``k`` brings, ``h_k`` the half vector
     between the directions to the light ray's source and to the eye, ``m`` the
     `shininess`. Only the caustic rays' directions are needed: the reason Liu et al.
-    keep them.
+    keep them. `eye`: ``(3,)`` metres; `albedo`, `specular` in ``[0, 1]``; `shininess`
+    in ``[0, 1e6]``.
     """
 
     eye: Float[Array, 3]
     albedo: float = 0.5
     specular: float = 0.5
     shininess: float = 40.0
+
+    def __init__(self, eye, albedo=0.5, specular=0.5, shininess=40.0):
+        eye = _as_float_array(eye, "eye")
+        if eye.shape != (3,):
+            raise ValueError(f"`eye` must have shape (3,), got {eye.shape}")
+        _check_finite(eye, "eye")
+        self.eye = eye
+        self.albedo = _shading_number(albedo, "albedo", 1.0)
+        self.specular = _shading_number(specular, "specular", 1.0)
+        self.shininess = _shading_number(shininess, "shininess", 1e6)
 
 
 def _segment_blocked(start, end, occluder) -> Bool[Array, "..."]:
@@ -369,6 +443,7 @@ def shade_points(
     max_gain: float = 1e4,
     axis_epsilon: float = 1e-9,
     intensity_correction: bool = True,
+    memory_limit: int | None = None,
 ) -> Float[Array, " P"]:
     """Light arriving at surface points from a set of caustic spot lights.
 
@@ -386,23 +461,38 @@ def shade_points(
       `Lambertian` or `Glossy`: the radiance they send (towards `Glossy.eye`).
     - `occluders`: opaque `Ellipsoid` objects (spheres: `Ellipsoid.sphere`).
     - `max_gain`, `axis_epsilon`, `intensity_correction`: see `evaluate_spot_lights`.
+    - `memory_limit`: bytes the shading may take (default 1 GiB; `point_bytes` per
+      point): more points raise a `ValueError` first.
 
     **Returns:** ``(P,)``.
     """
-    points = jnp.asarray(points)
-    normals = jnp.asarray(normals)
+    arguments = _shading_arguments(
+        lights, shading, occluders, max_gain, axis_epsilon, intensity_correction
+    )
+    points = check_array(points, "points", (None, 3))
+    normals = check_array(normals, "normals", (None, 3))
     if normals.shape != points.shape:
         raise ValueError(
             f"`normals` must have the shape of `points` {points.shape}, got {normals.shape}"
         )
+    if _is_concrete(normals) and np.any(np.sum(np.asarray(normals) ** 2, axis=-1) == 0):
+        raise ValueError("`normals` must be non-zero (unit normals)")
+    check_fits(
+        points.shape[0] * point_bytes(jnp.result_type(points.dtype, lights.origin.dtype)),
+        check_memory_limit(memory_limit),
+        f"shading {points.shape[0]} points",
+        "lower the number of `points`",
+    )
+    return _shade_points(lights, points, normals, *arguments)
+
+
+def _shading_arguments(lights, shading, occluders, max_gain, axis_epsilon, intensity_correction):
+    """The arguments `shade_points` and `render_spot_lights` share, checked: ``(shading,
+    occluders (a tuple), options)``."""
+    options = _check_options(lights, max_gain, axis_epsilon, intensity_correction)
     if shading is not None and not isinstance(shading, (Lambertian, Glossy)):
         raise ValueError(f"`shading` must be None, Lambertian or Glossy, got {shading!r}")
-    if not max_gain > 0:
-        raise ValueError(f"`max_gain` must be positive, got {max_gain}")
-    if not axis_epsilon > 0:
-        raise ValueError(f"`axis_epsilon` must be positive, got {axis_epsilon}")
-    options = (float(max_gain), float(axis_epsilon), bool(intensity_correction))
-    return _shade_points(lights, points, normals, shading, tuple(occluders), options)
+    return shading, _check_sequence_of(occluders, "occluders", Ellipsoid), options
 
 
 @eqx.filter_jit
@@ -415,13 +505,7 @@ def _shade_points(lights, points, normals, shading, occluders, options):
 
     def contribution(light):
         light = jax.tree.map(lambda a: a[None], light)
-        rays = evaluate_spot_lights(
-            light,
-            points,
-            max_gain=max_gain,
-            axis_epsilon=axis_epsilon,
-            intensity_correction=intensity_correction,
-        )
+        rays = _evaluate(light, points, max_gain, axis_epsilon, intensity_correction)
         e = rays.direction[:, 0]  # (P, 3 rays, 3)
         cos = jnp.maximum(-jnp.sum(e * normals[:, None, :], axis=-1), 0.0)
         arriving = rays.irradiance[:, 0] * cos  # (P, 3)
@@ -454,8 +538,7 @@ def receiver_points(receiver, samples: int = 1) -> Float[Array, "S R C 3"]:
     """Sample points of a `PlaneReceiver`'s pixels: ``samples x samples`` per pixel on a
     regular sub-grid (``samples = 1``: the pixel centres). **Returns**
     ``(samples^2, rows, cols, 3)`` on ``z = 0``."""
-    if isinstance(samples, bool) or not isinstance(samples, int) or samples < 1:
-        raise ValueError(f"`samples` must be an integer >= 1, got {samples!r}")
+    samples = check_int(samples, "samples", 1)
     x0, x1, y0, y1 = receiver.extent
     rows, cols = receiver.shape
     dtype = receiver.extent.dtype
@@ -478,28 +561,35 @@ def render_spot_lights(
     max_gain: float = 1e4,
     axis_epsilon: float = 1e-9,
     intensity_correction: bool = True,
+    memory_limit: int | None = None,
 ) -> Float[Array, "rows cols"]:
     """Render a set of caustic spot lights on a `PlaneReceiver` (the plane ``z = 0``,
     normal ``+z``), averaging ``samples x samples`` points per pixel (a caustic is
     sharper than a pixel; the reference bins photons over whole pixels).
 
     See `shade_points` for `shading`, `occluders`, `max_gain`, `axis_epsilon` and
-    `intensity_correction`.
+    `intensity_correction`. `memory_limit`: bytes the rendering may take (default 1 GiB;
+    `point_bytes` per sample point, ``rows x cols x samples^2`` of them): a larger
+    receiver raises a `ValueError` first.
     **Returns** ``(rows, cols)``: irradiance in the lights' intensity units (or radiance
     with a `shading` model).
     """
+    arguments = _shading_arguments(
+        lights, shading, occluders, max_gain, axis_epsilon, intensity_correction
+    )
+    if not isinstance(receiver, PlaneReceiver):
+        raise ValueError(f"`receiver` must be a PlaneReceiver, got {type(receiver).__name__}")
+    samples = check_int(samples, "samples", 1)
+    rows, cols = receiver.shape
+    dtype = jnp.result_type(receiver.extent.dtype, lights.origin.dtype)
+    check_fits(
+        rows * cols * samples**2 * point_bytes(dtype),
+        check_memory_limit(memory_limit),
+        f"rendering {rows} x {cols} pixels at {samples} x {samples} `samples`",
+        "lower `samples` or the receiver's `shape`",
+    )
     pts = receiver_points(receiver, samples)
-    s2, rows, cols, _ = pts.shape
     flat = pts.reshape(-1, 3)
     normals = jnp.broadcast_to(jnp.array([0.0, 0.0, 1.0], flat.dtype), flat.shape)
-    values = shade_points(
-        lights,
-        flat,
-        normals,
-        shading=shading,
-        occluders=occluders,
-        max_gain=max_gain,
-        axis_epsilon=axis_epsilon,
-        intensity_correction=intensity_correction,
-    )
-    return values.reshape(s2, rows, cols).mean(axis=0)
+    values = _shade_points(lights, flat, normals, *arguments)
+    return values.reshape(samples**2, rows, cols).mean(axis=0)

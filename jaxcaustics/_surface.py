@@ -17,6 +17,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
+from ._checks import check_array, check_bool
 from ._scene import HeightField
 
 _PAD_LOW, _PAD_HIGH = 3, 4  # enough for the taps of any coordinate after wrap/clamp
@@ -158,6 +159,15 @@ def height_and_gradient(
     `curvature`, followed by ``(H_xx, H_xy, H_yy)``. Derivatives are along the world
     axes, also for a rotated field.
     """
+    if not isinstance(surface, HeightField):
+        raise ValueError(f"`surface` must be a HeightField, got {type(surface).__name__}")
+    x = check_array(x, "x")
+    y = check_array(y, "y")
+    try:
+        np.broadcast_shapes(x.shape, y.shape)
+    except ValueError as err:
+        raise ValueError(f"`y` {y.shape} must have the shape of `x` {x.shape}") from err
+    curvature = check_bool(curvature, "curvature")
     rows, cols = surface.heights.shape
     x0, x1, y0, y1 = surface.extent
     dx, dy = (x1 - x0) / cols, (y1 - y0) / rows

@@ -47,6 +47,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from ._checks import check_bool, check_int, check_number, check_real_array
 from ._surface import bilinear
 
 _ARMIJO = (0.95, 0.25, 0.75)  # step scale factor, lower and upper Armijo-Goldstein bounds
@@ -54,6 +55,11 @@ _PATIENCE = 8  # iterations without improvement that count as a stall
 # no stall before this many iterations: the first ones can raise the misfit while the
 # step size adapts (measured: a silhouette at 512^2 from 0.8 up to 1.8, then down to 0.09)
 _MIN_ITERATIONS = 30
+# most back-and-forth iterations (the residual history is a buffer of the next power of
+# two: 10^12 overflowed the jitted loop's int32 counter after the checks)
+MAX_ITERATIONS = 1 << 20
+# most pixels of a density (4096^2: some 30 float64 arrays of this size, 4 GB)
+MAX_PIXELS = 1 << 24
 
 
 @dataclasses.dataclass
@@ -232,9 +238,12 @@ def _corner_map(potential: jax.Array, h):
 
 
 def _check_density(a, name: str) -> np.ndarray:
-    d = np.asarray(a, dtype=float)
+    d = check_real_array(a, name)
     if d.ndim != 2 or min(d.shape) < 2:
         raise ValueError(f"`{name}` must be a 2-D density of at least 2 x 2, got {d.shape}")
+    if d.size > MAX_PIXELS:
+        raise ValueError(f"`{name}` has {d.size} pixels, over the limit {MAX_PIXELS} (4096^2)")
+    d = d.astype(float)
     if not np.all(np.isfinite(d)):
         raise ValueError(f"`{name}` contains NaN or infinite values")
     if np.any(d < 0):
@@ -259,13 +268,15 @@ def transport_map(
 
     - `source`, `target`: non-negative ``(rows, cols)`` arrays (the same shape), any
       scale: both are scaled to the same total mass. Zeros are allowed anywhere (black
-      regions of a target need no floor); an all-zero density is refused.
-    - `iterations`: back-and-forth iterations at most.
-    - `tol`: stop when the relative L1 misfit of the pushed-forward source falls below.
+      regions of a target need no floor); an all-zero density is refused, and so is
+      one over `MAX_PIXELS` pixels.
+    - `iterations`: back-and-forth iterations at most (an int in ``[1, MAX_ITERATIONS]``).
+    - `tol`: stop when the relative L1 misfit of the pushed-forward source falls below
+      (a finite number >= 0).
     - `stall`: stop when 8 iterations in a row did not bring the misfit below
       ``(1 - stall)`` times its best before them: the grid's own floor (sharp edges
       and points are resolved to a pixel: a silhouette at 512^2 stalls near 0.085, a
-      smooth pair near 0.02).
+      smooth pair near 0.02). A number in ``[0, 1)``.
     - `warn`: warn (``warnings.warn``) when neither `tol` nor a stall ended the
       iterations (they ran out).
 
@@ -275,8 +286,10 @@ def transport_map(
     nu = _check_density(target, "target")
     if mu.shape != nu.shape:
         raise ValueError(f"`source` {mu.shape} and `target` {nu.shape} must have one shape")
-    if isinstance(iterations, bool) or not isinstance(iterations, int) or iterations < 1:
-        raise ValueError(f"`iterations` must be an int >= 1, got {iterations!r}")
+    iterations = check_int(iterations, "iterations", 1, MAX_ITERATIONS)
+    tol = check_number(tol, "tol", low=0.0)
+    stall = check_number(stall, "stall", low=0.0, high=1.0, high_open=True)
+    warn = check_bool(warn, "warn")
     dtype = jnp.result_type(float)
     mu = mu / mu.mean()
     nu = nu / nu.mean()

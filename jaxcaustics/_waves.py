@@ -16,7 +16,6 @@ from __future__ import annotations
 import functools
 import math
 import numbers
-import operator
 import warnings
 from collections.abc import Sequence
 from typing import Any
@@ -25,6 +24,9 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
+
+from ._checks import check_number, check_real_array, check_shape
+from ._scene import _check_extent
 
 __all__ = ["GRAVITY", "gaussian_bump", "sine_sum", "wave_heights"]
 
@@ -39,27 +41,14 @@ def _is_concrete(x) -> bool:
     return not isinstance(x, jax.core.Tracer)
 
 
-def _check_shape(shape) -> tuple[int, int]:
-    try:
-        shp = tuple(operator.index(s) for s in shape)
-    except TypeError as err:
-        raise ValueError(f"`shape` must be (rows, cols) of positive ints, got {shape!r}") from err
-    if len(shp) != 2 or min(shp) < 1:
-        raise ValueError(f"`shape` must be (rows, cols) of positive ints, got {shape!r}")
-    return shp  # type: ignore[return-value]
-
-
 def _concrete_extent(extent) -> tuple[float, float, float, float]:
     """The extent as Python floats; it fixes the wave vectors, so it cannot be traced."""
-    try:
-        ext = np.asarray(extent, dtype=np.float64)
-    except jax.errors.TracerArrayConversionError as err:
+    if isinstance(extent, jax.core.Tracer):
         raise ValueError(
             "`extent` must be concrete (not traced): it fixes the wave numbers; close over "
             "it or mark it static instead of passing it through jax.jit / jax.vmap"
-        ) from err
-    except (TypeError, ValueError) as err:
-        raise ValueError(f"`extent` must be (x_min, x_max, y_min, y_max), got {extent!r}") from err
+        )
+    ext = check_real_array(extent, "extent").astype(np.float64)
     if ext.shape != (4,):
         raise ValueError(f"`extent` must be (x_min, x_max, y_min, y_max), got shape {ext.shape}")
     if not np.all(np.isfinite(ext)):
@@ -85,22 +74,26 @@ def _cycles(lo: float, hi: float, n: int, waves: np.ndarray) -> np.ndarray:
 def _scalar(
     value, name: str, *, minimum: float | None = None, strict: bool = False, allow_inf: bool = False
 ) -> Array:
-    """A float scalar (possibly traced); checked when concrete."""
-    if _is_concrete(value):
-        if np.ndim(value) != 0:
-            raise ValueError(f"`{name}` must be a scalar, got shape {np.shape(value)}")
-        try:
-            v = float(np.asarray(value))
-        except (TypeError, ValueError) as err:
-            raise ValueError(f"`{name}` must be a real scalar, got {value!r}") from err
-        if math.isnan(v) or (math.isinf(v) and not allow_inf):
-            raise ValueError(f"`{name}` must be finite, got {v}")
-        if minimum is not None and (v <= minimum if strict else v < minimum):
-            op = ">" if strict else ">="
-            raise ValueError(f"`{name}` must be {op} {minimum}, got {v}")
-    elif jnp.ndim(value) != 0:
-        raise ValueError(f"`{name}` must be a scalar, got shape {jnp.shape(value)}")
-    return jnp.asarray(value, dtype=jnp.result_type(float, value))
+    """A float scalar (possibly traced); checked when concrete, also for fitting the
+    float dtype it is computed in."""
+    if not _is_concrete(value):
+        if jnp.ndim(value) != 0:
+            raise ValueError(f"`{name}` must be a scalar, got shape {jnp.shape(value)}")
+        return jnp.asarray(value, dtype=jnp.result_type(float, value))
+    arr = check_real_array(value, name)
+    if arr.ndim != 0:
+        raise ValueError(f"`{name}` must be a scalar, got shape {arr.shape}")
+    v = float(arr)
+    if math.isnan(v) or (math.isinf(v) and not allow_inf):
+        raise ValueError(f"`{name}` must be finite, got {v}")
+    if minimum is not None and (v <= minimum if strict else v < minimum):
+        op = ">" if strict else ">="
+        raise ValueError(f"`{name}` must be {op} {minimum}, got {v}")
+    dtype = jnp.result_type(float, value)
+    with np.errstate(over="ignore"):
+        if math.isfinite(v) and not np.isfinite(np.asarray(v, dtype)):
+            raise ValueError(f"`{name}` {v} overflows {dtype}")
+    return jnp.asarray(value, dtype=dtype)
 
 
 def _float_dtype(*values) -> np.dtype:
@@ -128,7 +121,7 @@ def _draw_waves(
     n_max = math.floor(ly / lam_min * (1 + 1e-9))
     if (2 * m_max + 1) * (n_max + 1) > _MAX_CANDIDATES:
         raise ValueError(
-            f"`wavelength_range` minimum {lam_min} m is too short for the extent "
+            f"`wavelength_range` minimum {lam_min} m is too short for the `extent` "
             f"{lx} x {ly} m (over {_MAX_CANDIDATES} candidate wave vectors)"
         )
     # One representative of each pair {k, -k} (the upper half-plane), so that no two
@@ -258,7 +251,7 @@ def wave_heights(
     UserWarning
         When a wave is at or above the grid's Nyquist frequency (it aliases).
     """
-    rows, cols = _check_shape(shape)
+    rows, cols = check_shape(shape, "shape")
     ext = _concrete_extent(extent)
     lx, ly = ext[1] - ext[0], ext[3] - ext[2]
     if isinstance(num_waves, bool) or not isinstance(num_waves, numbers.Integral):
@@ -270,30 +263,18 @@ def wave_heights(
     if wavelength_range is None:
         lam = (min(lx, ly) / 8.0, max(lx, ly))
     else:
-        try:
-            lam = tuple(float(v) for v in wavelength_range)
-        except (TypeError, ValueError) as err:
-            raise ValueError(
-                f"`wavelength_range` must be (min, max) in metres, got {wavelength_range!r}"
-            ) from err
-        if len(lam) != 2 or not all(math.isfinite(v) and v > 0 for v in lam):
+        lam_arr = check_real_array(wavelength_range, "wavelength_range")
+        lam = tuple(float(v) for v in lam_arr.ravel())
+        if lam_arr.shape != (2,) or not all(math.isfinite(v) and v > 0 for v in lam):
             raise ValueError(
                 f"`wavelength_range` must be two finite positive lengths, got {wavelength_range!r}"
             )
         if lam[0] > lam[1]:
             raise ValueError(f"`wavelength_range` must be (min, max) with min <= max, got {lam}")
-    try:
-        direction = float(direction)
-        direction_spread = float(direction_spread)
-    except (TypeError, ValueError) as err:
-        raise ValueError(
-            f"`direction` and `direction_spread` must be numbers (static), got "
-            f"{direction!r}, {direction_spread!r}"
-        ) from err
-    if not math.isfinite(direction):
-        raise ValueError(f"`direction` must be finite, got {direction}")
-    if not 0.0 < direction_spread <= math.pi:
-        raise ValueError(f"`direction_spread` must be in (0, pi], got {direction_spread}")
+    direction = check_number(direction, "direction")
+    direction_spread = check_number(
+        direction_spread, "direction_spread", low=0.0, high=math.pi, low_open=True
+    )
     amplitude = _scalar(amplitude, "amplitude", minimum=0.0)
     depth = _scalar(depth, "depth", minimum=0.0, strict=True, allow_inf=True)
     time = _scalar(time, "time")
@@ -353,18 +334,7 @@ def _sum_waves(cx, sx, cy_a, sy_a, k, phase, amplitude, depth, time, *, deep: bo
 
 def _extent_array(extent) -> Array:
     """The extent as a float array, possibly traced (checked fully when concrete)."""
-    try:
-        ext_np = np.asarray(extent, dtype=np.float64)
-    except jax.errors.TracerArrayConversionError:
-        ext_np = None  # traced: checked for shape only
-    except (TypeError, ValueError) as err:
-        raise ValueError(f"`extent` must be (x_min, x_max, y_min, y_max), got {extent!r}") from err
-    if ext_np is not None:
-        _concrete_extent(ext_np)
-    ext = jnp.asarray(extent)
-    if ext.shape != (4,):
-        raise ValueError(f"`extent` must be (x_min, x_max, y_min, y_max), got shape {ext.shape}")
-    return ext.astype(_float_dtype(ext))
+    return _check_extent(extent, "extent")
 
 
 def gaussian_bump(
@@ -396,13 +366,15 @@ def gaussian_bump(
         Heights in metres at pixel centres, indexed ``[y, x]``. Differentiable with
         respect to `center`, `sigma`, `amplitude` and `extent`.
     """
-    shape = _check_shape(shape)
+    shape = check_shape(shape, "shape")
     ext = _extent_array(extent)
     sigma = _scalar(sigma, "sigma", minimum=0.0, strict=True)
     amplitude = _scalar(amplitude, "amplitude")
     if center is None:
         c = 0.5 * (ext[0::2] + ext[1::2])  # (x, y) of the extent's centre
     else:
+        if not isinstance(center, jax.Array):  # a tracer is checked for shape only
+            center = check_real_array(center, "center")
         c = jnp.asarray(center)
         if c.shape != (2,):
             raise ValueError(f"`center` must be (x, y), got shape {c.shape}")
@@ -450,7 +422,7 @@ def sine_sum(
     jax.Array, shape (rows, cols)
         Heights in metres, indexed ``[y, x]``.
     """
-    rows, cols = _check_shape(shape)
+    rows, cols = check_shape(shape, "shape")
     ext = _concrete_extent(extent)
     try:
         terms = [tuple(t) for t in terms]  # type: ignore[misc]
@@ -469,8 +441,11 @@ def sine_sum(
         for name, kval in (("kx", kx), ("ky", ky)):
             if not _is_concrete(kval):
                 raise ValueError(f"`terms[{i}]` {name} must be a concrete int, not traced")
-            kf = float(np.asarray(kval))
-            if not (math.isfinite(kf) and kf == round(kf)):
+            try:
+                kf = float(check_real_array(kval, "terms"))  # no strings, bools, arrays
+            except (ValueError, TypeError):
+                kf = math.nan
+            if not (math.isfinite(kf) and kf == round(kf) and abs(kf) <= 2**31):
                 raise ValueError(
                     f"`terms[{i}]` {name} must be an integer number of periods, got {kval!r}"
                 )

@@ -197,16 +197,3 @@ def test_readme_design_example_runs(tmp_path, monkeypatch):
     # photons per pixel side); verify_lens's default 512^2 photons (8 per pixel side) add
     # binning noise (0.062 there) and the flat facets of the solid add more
     assert namespace["check"].nominal < 0.1, namespace["check"]
-
-
-def test_resume_without_a_checkpoint_says_so(tmp_path, capsys, monkeypatch):
-    """`--resume` with no checkpoint in the output folder started afresh silently."""
-    import jaxcaustics._inverse.checkpoint as checkpoint
-    from jaxcaustics._cli_inverse import _run_levels
-
-    monkeypatch.setattr(checkpoint, "run_rounds", lambda *args, **kwargs: (None, 1, False))
-    assert _run_levels([lambda state: state], (4, 4), tmp_path, "design", resume=True) is None
-    assert "no checkpoint" in capsys.readouterr().out
-    (tmp_path / "design.ckpt.npz").write_bytes(b"")
-    assert _run_levels([lambda state: state], (4, 4), tmp_path, "design", resume=True) is None
-    assert "no checkpoint" not in capsys.readouterr().out

@@ -72,7 +72,7 @@ import lineax as lx
 import numpy as np
 import optimistix as optx
 
-from .._checks import check_int
+from .._checks import check_bool, check_int, check_number, check_real_array, check_shape
 from .._optics import refract_components
 from .._photons import _grid
 from .._scene import DirectionalLight, HeightField, LensScene, PlaneReceiver, PointLight
@@ -84,6 +84,7 @@ from .._surface import (
     sample_grid,
 )
 from .._surface import bilinear as _bilinear
+from .._transport import MAX_ITERATIONS, MAX_PIXELS
 from .._transport import neumann_poisson as _neumann_poisson
 from .recover import _laplacian as _five_point
 from .recover import check_irradiance, resample_heights
@@ -166,10 +167,10 @@ def _is_number(value) -> bool:
 
 
 def _check_target(target) -> np.ndarray:
-    try:
-        t = np.asarray(target, dtype=float)
-    except (TypeError, ValueError) as err:
-        raise ValueError(f"`target` must be a numeric image, got {type(target).__name__}") from err
+    t = check_real_array(target, "target")
+    if (t.shape[0] * t.shape[1] if t.ndim >= 2 else t.size) > MAX_PIXELS:
+        raise ValueError(f"`target` {t.shape} has over {MAX_PIXELS} pixels (4096^2)")
+    t = t.astype(float)
     if t.ndim == 3 and t.shape[-1] in (3, 4):
         t = t[..., :3] @ np.array([0.2126, 0.7152, 0.0722])  # luminance of an RGB image
     if t.ndim != 2:
@@ -937,10 +938,17 @@ def fresnel_zones(heights, depth: float) -> np.ndarray:
     surface steps down by `depth` (over one sample of the bicubic surface, which sends the
     light falling on the step astray). Returns heights in ``[-depth, 0]`` (metres, the
     same shape)."""
-    h = np.asarray(heights, dtype=float)
+    h = check_real_array(heights, "heights").astype(float)
+    if h.size == 0 or not np.all(np.isfinite(h)):
+        raise ValueError(f"`heights` must be finite and not empty, got shape {h.shape}")
     depth = _positive(depth, "depth")
     folded = -np.mod(h.max() - h, depth)
     return folded - folded.max()
+
+
+def _predict_photons(target_shape) -> int:
+    """The predicted caustic's photons per side by default: 4 per pixel side."""
+    return 4 * max(target_shape) + 1
 
 
 def default_levels(shape: Sequence[int]) -> tuple[int, ...]:
@@ -1254,6 +1262,9 @@ def design_lens(
     `warnings.warn` that says so and what to change (also in `LensDesign.warnings`).
     """
     t_start = time.perf_counter()
+    throw_errors = check_bool(throw_errors, "throw_errors")
+    if callback is not None and not callable(callback):
+        raise ValueError(f"`callback` must be callable or None, got {type(callback).__name__}")
     setup = _prepare(
         target,
         width=width,
@@ -1366,23 +1377,38 @@ class _Setup:
 _BYTES_PER_SAMPLE, _BYTES_FIXED = 1300, 1 << 30
 
 
-def _check_design_memory(shape, oversample: int, extra: int) -> None:
-    """Refuse, before anything is compiled, a heights grid whose estimated memory (plus
-    `extra` bytes) exceeds half of this machine's (it would swap or be killed after
-    minutes of work)."""
-    samples = shape[0] * shape[1] * oversample**2
-    estimate = _BYTES_FIXED + extra + _BYTES_PER_SAMPLE * samples
+def _physical_memory() -> int | None:
+    """This machine's memory in bytes (None where the platform does not say)."""
     try:
-        physical = os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
-    except (AttributeError, ValueError, OSError):  # not on this platform: no check
+        return os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
+    except (AttributeError, ValueError, OSError):
+        return None
+
+
+def _check_design_memory(shape, oversample: int, extra: int, photons: int = 0) -> None:
+    """Refuse, before anything is compiled, a design whose estimated memory exceeds
+    half of this machine's (it would swap or be killed after minutes of work): the
+    (largest) heights grid `shape` times `oversample`^2 photon cells, `extra` bytes,
+    and the predicted caustic's grid of `photons`^2 photons (traced at once)."""
+    from .._methods.triangles import band_bytes
+
+    samples = shape[0] * shape[1] * oversample**2
+    grid = _BYTES_PER_SAMPLE * samples
+    predicted = band_bytes(photons * photons, 1, jnp.result_type(float))
+    estimate = _BYTES_FIXED + extra + grid + predicted
+    physical = _physical_memory()
+    if physical is None or estimate <= 0.5 * physical:
         return
-    if estimate > 0.5 * physical:
-        raise ValueError(
-            f"the finest heights grid {tuple(shape)} needs about {estimate / 2**30:.1f} GiB "
-            f"({_BYTES_PER_SAMPLE} bytes a sample), more than half of this machine's "
-            f"{physical / 2**30:.1f} GiB: lower `levels` (or `heights_shape`, or the "
-            "target's size for the transport start)"
-        )
+    knobs = "`levels` (or `heights_shape`" + (", `oversample`" if oversample > 1 else "")
+    if predicted > grid:
+        knobs = "`predict_photons` (by default 4 per pixel side: or the target's size)"
+    raise ValueError(
+        f"the design needs about {estimate / 2**30:.1f} GiB (heights grid {tuple(shape)}: "
+        f"{grid / 2**30:.1f} GiB at {_BYTES_PER_SAMPLE} bytes a sample; the predicted "
+        f"caustic's {photons}^2 photons: {predicted / 2**30:.1f} GiB), more than half of "
+        f"this machine's {physical / 2**30:.1f} GiB: lower {knobs}"
+        + (")" if knobs.startswith("`levels`") else "")
+    )
 
 
 def _residual_count(problem: _Problem) -> int:
@@ -1443,21 +1469,14 @@ def _prepare(
     levels_given = levels is not None
     if levels is None:
         levels = default_levels(t.shape)
-    try:
-        if any(isinstance(n, bool) or int(n) != n for n in levels):
-            raise TypeError
-        levels = [int(n) for n in levels]
-    except (TypeError, ValueError) as err:
-        raise ValueError(f"`levels` must be a sequence of ints, got {levels!r}") from err
-    if not levels or min(levels) < 4:
+    if isinstance(levels, (str, bytes)) or not isinstance(levels, (Sequence, np.ndarray)):
+        raise ValueError(f"`levels` must be a sequence of ints, got {levels!r}")
+    if len(levels) == 0:
         raise ValueError(f"`levels` must be a non-empty sequence of ints >= 4, got {levels!r}")
-    for name, value, low in (
-        ("max_steps", max_steps, 1),
-        ("oversample", oversample, 1),
-        ("cg_steps", cg_steps, 1),
-    ):
-        if isinstance(value, bool) or not isinstance(value, int) or value < low:
-            raise ValueError(f"`{name}` must be an int >= {low}, got {value!r}")
+    levels = [check_int(n, "levels", 4) for n in levels]
+    max_steps = check_int(max_steps, "max_steps", 1)
+    oversample = check_int(oversample, "oversample", 1)
+    cg_steps = check_int(cg_steps, "cg_steps", 1)
     for name, value in (
         ("regularization", regularization),
         ("start_scale", start_scale),
@@ -1487,24 +1506,14 @@ def _prepare(
         raise ValueError(f"`start` must be 'transport' or 'poisson', got {start!r}")
     if floor is None:
         floor = 0.0 if start == "transport" else 0.02
-    low = 0 if start == "transport" else 1e-300
-    if not (isinstance(floor, (int, float)) and low <= floor < 1):
-        raise ValueError(
-            f"`floor` must be in {'[0, 1)' if start == 'transport' else '(0, 1)'} with the "
-            f"{start} start, got {floor!r}"
-        )
-    if (
-        isinstance(transport_iterations, bool)
-        or not isinstance(transport_iterations, int)
-        or transport_iterations < 1
-    ):
-        raise ValueError(
-            f"`transport_iterations` must be an int >= 1, got {transport_iterations!r}"
-        )
-    if not (isinstance(warn_error, (int, float)) and warn_error > 0):
-        raise ValueError(f"`warn_error` must be a positive number, got {warn_error!r}")
-    if isinstance(refine_steps, bool) or not isinstance(refine_steps, int) or refine_steps < 0:
-        raise ValueError(f"`refine_steps` must be an int >= 0, got {refine_steps!r}")
+    floor = check_number(floor, "floor", low=0.0, high=1.0, high_open=True)
+    if start == "poisson" and floor == 0:
+        raise ValueError("`floor` must be in (0, 1) with the poisson start, got 0")
+    transport_iterations = check_int(
+        transport_iterations, "transport_iterations", 1, MAX_ITERATIONS
+    )
+    warn_error = check_number(warn_error, "warn_error", low=0.0, low_open=True)
+    refine_steps = check_int(refine_steps, "refine_steps", 0)
     if start == "transport" and levels_given:
         shapes = [_level_shape(levels[-1], width, height)]
     elif start == "transport":
@@ -1512,17 +1521,18 @@ def _prepare(
     else:
         shapes = [_level_shape(n, width, height) for n in levels]
     if heights_shape is not None:
-        try:
-            hs = tuple(int(s) for s in heights_shape)
-        except TypeError as err:
-            raise ValueError(
-                f"`heights_shape` must be (rows, cols), got {heights_shape!r}"
-            ) from err
-        if len(hs) != 2 or min(hs) < 4:
-            raise ValueError(f"`heights_shape` must be (rows, cols) >= 4, got {heights_shape!r}")
-        shapes[-1] = hs
+        shapes[-1] = check_shape(heights_shape, "heights_shape", 4)
     # the transport start's image refinement adds its rasteriser budget
-    _check_design_memory(shapes[-1], oversample, _REFINE_MEMORY if start == "transport" else 0)
+    extra = _REFINE_MEMORY if start == "transport" else 0
+    if screen_extent is not None:
+        given_screen = check_real_array(screen_extent, "screen_extent").astype(float)
+        ordered = given_screen.shape == (4,) and given_screen[1] > given_screen[0]
+        if not (ordered and given_screen[3] > given_screen[2] and np.isfinite(given_screen).all()):
+            raise ValueError(
+                f"`screen_extent` must be (x_min, x_max, y_min, y_max), got {screen_extent!r}"
+            )
+    largest = max(shapes, key=lambda s: s[0] * s[1])
+    _check_design_memory(largest, oversample, extra, predict_photons or _predict_photons(t.shape))
     if light is None:
         light = DirectionalLight(np.array([0.0, 0.0, -1.0]))
     elif not isinstance(light, (DirectionalLight, PointLight)):
@@ -1540,14 +1550,7 @@ def _prepare(
         ior=ior,
     )
     footprint, flat_flux = _flat_lens(light, aperture, thickness, throw, ior)
-    if screen_extent is None:
-        screen = footprint
-    else:
-        screen = np.asarray(screen_extent, dtype=float)
-        if screen.shape != (4,) or not (screen[1] > screen[0] and screen[3] > screen[2]):
-            raise ValueError(
-                f"`screen_extent` must be (x_min, x_max, y_min, y_max), got {screen_extent!r}"
-            )
+    screen = footprint if screen_extent is None else given_screen
     receiver = PlaneReceiver(screen, t.shape)
 
     # the target: unit mean over the screen, masked, plus the floor, scaled to the flux
@@ -1698,7 +1701,7 @@ def _finish(setup: _Setup, h, history, level_reports, result, t_start: float) ->
     t0 = time.perf_counter()
     from .._methods.triangles import trace_photons, triangle_window, triangles_image
 
-    n_pred = setup.predict_photons or 4 * max(setup.target_shape) + 1
+    n_pred = setup.predict_photons or _predict_photons(setup.target_shape)
     # the window that holds 99.9% of the flux, at most _PREDICT_WINDOW pixels: the few
     # triangles stretched across a dark gap would otherwise size it (32 pixels: 4x the
     # time of 16 for 0.26% of the image, measured on a design for a dozen dots)
@@ -1834,7 +1837,7 @@ def design_lens_variants(
     variants together; ``first_step_seconds`` is NaN). Invalid specifications raise
     `ValueError` before any optimisation starts.
     """
-    from .._sharding import map_sharded, resolve_devices
+    from .._sharding import _per_device, map_sharded, resolve_devices
 
     t_start = time.perf_counter()
     for name in ("throw", "callback"):
@@ -1843,13 +1846,14 @@ def design_lens_variants(
                 f"`{name}` is not an argument of design_lens_variants"
                 + (" (give `throws`)" if name == "throw" else " (no per-step calls)")
             )
-    try:
-        throws = [float(t) for t in throws]
-    except TypeError as err:
-        raise ValueError(f"`throws` must be a sequence of numbers, got {throws!r}") from err
-    if not throws:
+    if isinstance(throws, (str, bytes)) or not isinstance(throws, (Sequence, np.ndarray)):
+        raise ValueError(f"`throws` must be a sequence of numbers, got {throws!r}")
+    if len(throws) == 0:
         raise ValueError("`throws` must hold at least one throw distance")
-    resolve_devices(devices)  # a bad `devices` fails before the set-up
+    throws = [check_number(t, f"throws[{i}]") for i, t in enumerate(throws)]  # > 0: `_prepare`
+    throw_errors = check_bool(throw_errors, "throw_errors")
+    # bad `devices` or `per_device` fail before the set-up
+    _per_device(per_device, resolve_devices(devices))
     unknown = set(design_kwargs) - set(inspect.signature(design_lens).parameters)
     if unknown:
         raise ValueError(f"unknown arguments of design_lens: {sorted(unknown)}")

@@ -65,6 +65,7 @@ import numpy as np
 import optimistix as optx
 from jaxtyping import Array
 
+from .._checks import check_bool, check_int, check_number, check_real_array, check_shape
 from .._io import read_image
 from .._methods.twopass import MAX_AUTO_HALF_WINDOW, auto_window, two_pass
 from .._scene import (
@@ -78,6 +79,7 @@ from .._scene import (
     _check_positive_scalar,
 )
 from .._surface import height_and_gradient
+from .._transport import MAX_PIXELS
 from .camera import camera_blur, deconvolve
 from .water_refine import FOLD_BLURS, refine_folds
 from .water_start import flat_shift, transport_start
@@ -318,20 +320,27 @@ def resample_heights(heights, extent, shape: tuple[int, int], boundary: str = "p
 def _load_target(target, ior) -> np.ndarray:
     channels = len(ior) if isinstance(ior, tuple) else 0
     if isinstance(target, (str, os.PathLike)):
-        arr = np.asarray(read_image(target, as_gray=channels == 0), dtype=float)
+        try:
+            arr = np.asarray(read_image(target, as_gray=channels == 0), dtype=float)
+        except FileNotFoundError as err:
+            raise FileNotFoundError(f"`target`: {err}") from err
+        except ValueError as err:
+            raise ValueError(f"`target`: {err}") from err
         if channels and arr.ndim == 3 and arr.shape[2] == 4:
             arr = arr[..., :3]
     else:
-        try:
-            arr = np.asarray(target, dtype=float)
-        except (TypeError, ValueError) as err:
-            raise ValueError(f"`target` must be an array or an image path: {err}") from err
+        arr = check_real_array(target, "target")
+        if (arr.shape[0] * arr.shape[1] if arr.ndim >= 2 else arr.size) > MAX_PIXELS:
+            raise ValueError(f"`target` {arr.shape} has over {MAX_PIXELS} pixels (4096^2)")
+        arr = arr.astype(float)
     want = 3 if channels else 2
     if arr.ndim != want or (channels and arr.shape[2] != channels):
         what = f"(rows, cols, {channels})" if channels else "(rows, cols)"
         raise ValueError(f"`target` must have shape {what} for ior={ior!r}, got {arr.shape}")
     if arr.shape[0] < 2 or arr.shape[1] < 2:
         raise ValueError(f"`target` needs at least 2x2 pixels, got shape {arr.shape}")
+    if arr.shape[0] * arr.shape[1] > MAX_PIXELS:
+        raise ValueError(f"`target` {arr.shape} has over {MAX_PIXELS} pixels (4096^2)")
     return check_irradiance(arr, "there is no caustic to match")
 
 
@@ -345,32 +354,6 @@ def check_irradiance(target: np.ndarray, if_dark: str) -> np.ndarray:
     if not np.any(target > 0):
         raise ValueError(f"`target` is all zeros: {if_dark}")
     return target
-
-
-def _shape2(value, name: str) -> tuple[int, int]:
-    try:
-        shape = tuple(int(s) for s in value)
-    except (TypeError, ValueError) as err:
-        raise ValueError(f"`{name}` must be (rows, cols), got {value!r}") from err
-    if len(shape) != 2 or min(shape) < 2 or any(s != v for s, v in zip(shape, value, strict=True)):
-        raise ValueError(f"`{name}` must be two ints >= 2, got {value!r}")
-    return shape  # type: ignore[return-value]
-
-
-def _nonneg(value, name: str) -> float:
-    try:
-        v = float(value)
-    except (TypeError, ValueError) as err:
-        raise ValueError(f"`{name}` must be a number, got {value!r}") from err
-    if not (math.isfinite(v) and v >= 0):
-        raise ValueError(f"`{name}` must be finite and >= 0, got {value!r}")
-    return v
-
-
-def _pos_int(value, name: str) -> int:
-    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 1:
-        raise ValueError(f"`{name}` must be an int >= 1, got {value!r}")
-    return int(value)
 
 
 def _result_window(levels, stages, samples_x, channels_y):
@@ -392,12 +375,11 @@ def _result_window(levels, stages, samples_x, channels_y):
 
 
 def _levels(coarse_to_fine, shape: tuple[int, int]) -> list[tuple[int, int]]:
-    try:
-        factors = [_pos_int(f, "coarse_to_fine") for f in coarse_to_fine]
-    except TypeError as err:
-        raise ValueError(
-            f"`coarse_to_fine` must be a sequence of ints, got {coarse_to_fine!r}"
-        ) from err
+    if isinstance(coarse_to_fine, (str, bytes)) or not isinstance(
+        coarse_to_fine, (Sequence, np.ndarray)
+    ):
+        raise ValueError(f"`coarse_to_fine` must be a sequence of ints, got {coarse_to_fine!r}")
+    factors = [check_int(f, "coarse_to_fine", 1) for f in coarse_to_fine]
     if (
         not factors
         or factors[-1] != 1
@@ -525,9 +507,9 @@ def recover_surface(
     depth = float(_check_positive_scalar(rest_depth, "rest_depth"))
     if not isinstance(light, DirectionalLight):
         raise ValueError(f"`light` must be a DirectionalLight, got {type(light).__name__}")
-    shape = _shape2(
-        target_arr.shape[:2] if heights_shape is None else heights_shape, "heights_shape"
-    )
+    shape = target_arr.shape[:2]
+    if heights_shape is not None:
+        shape = check_shape(heights_shape, "heights_shape", 2, max_size=MAX_PIXELS)
     if boundary not in BOUNDARY_MODES:
         raise ValueError(f"`boundary` must be one of {BOUNDARY_MODES}, got {boundary!r}")
     if start not in ("auto", "transport", "ripple"):
@@ -559,24 +541,21 @@ def recover_surface(
         solver = "levenberg_marquardt"
     if solver is not None and solver not in SOLVERS:
         raise ValueError(f"`solver` must be one of {SOLVERS} or None, got {solver!r}")
-    smoothness = _nonneg(smoothness, "smoothness")
+    smoothness = check_number(smoothness, "smoothness", low=0.0)
     level_shapes = _levels(coarse_to_fine, shape)
-    max_steps = _pos_int(max_steps, "max_steps")
-    rtol, atol = _nonneg(rtol, "rtol"), _nonneg(atol, "atol")
-    cg_steps = _pos_int(cg_steps, "cg_steps")
-    hit_iterations_ok = isinstance(hit_iterations, int) and hit_iterations >= 0
-    if isinstance(hit_iterations, bool) or not hit_iterations_ok:
-        raise ValueError(f"`hit_iterations` must be an int >= 0, got {hit_iterations!r}")
-    supersample = _pos_int(supersample, "supersample")
-    blur = _nonneg(blur, "blur")
+    max_steps = check_int(max_steps, "max_steps", 1)
+    rtol = check_number(rtol, "rtol", low=0.0)
+    atol = check_number(atol, "atol", low=0.0)
+    cg_steps = check_int(cg_steps, "cg_steps", 1)
+    hit_iterations = check_int(hit_iterations, "hit_iterations", 0)
+    supersample = check_int(supersample, "supersample", 1)
+    blur = check_number(blur, "blur", low=0.0)
     if blur > min(target_arr.shape[:2]) / 6:
         raise ValueError(
             f"`blur` of {blur} pixels is wider than a sixth of the target "
             f"{target_arr.shape[:2]}: nothing would be left to recover"
         )
-    learning_rate = _nonneg(learning_rate, "learning_rate")
-    if learning_rate == 0:
-        raise ValueError("`learning_rate` must be positive")
+    learning_rate = check_number(learning_rate, "learning_rate", low=0.0, low_open=True)
     if samples_x != "auto":
         if (
             isinstance(samples_x, bool)
@@ -593,15 +572,25 @@ def recover_surface(
             or channels_y % 2
         ):
             raise ValueError(f"`channels_y` must be an even int >= 0, got {channels_y!r}")
+        rows, cols = target_arr.shape[:2]  # an explicit window past every pixel is refused
+        if samples_x > 2 * cols + 1 or channels_y > 2 * rows:
+            raise ValueError(
+                f"the window (`samples_x`={samples_x}, `channels_y`={channels_y}) reaches "
+                f"past the target's {rows} x {cols} pixels: samples_x <= {2 * cols + 1} and "
+                f"channels_y <= {2 * rows} already reach every pixel"
+            )
     elif channels_y is not None:
         raise ValueError("`channels_y` is chosen with samples_x='auto'; pass both as ints")
     if fold_fit is not None and not isinstance(fold_fit, bool):
         raise ValueError(f"`fold_fit` must be True, False or None, got {fold_fit!r}")
+    throw = check_bool(throw, "throw")
+    if normalize is not None:
+        normalize = check_bool(normalize, "normalize")
     if callback is not None and not callable(callback):
         raise ValueError(f"`callback` must be callable or None, got {type(callback).__name__}")
     dtype = jnp.result_type(float)
     if initial is not None:
-        init_arr = np.asarray(initial, dtype=float)
+        init_arr = check_real_array(initial, "initial").astype(float)
         if init_arr.ndim != 2 or min(init_arr.shape) < 2:
             raise ValueError(
                 f"`initial` must be 2-D with at least 2x2 samples, got {init_arr.shape}"

@@ -19,6 +19,7 @@ continues after the last frame saved), and Ctrl-C keeps the frames done.
 from __future__ import annotations
 
 import dataclasses
+import inspect
 import os
 import time
 import warnings
@@ -29,7 +30,8 @@ from typing import Any
 import jax.numpy as jnp
 import numpy as np
 
-from .._io import _READ_EXTENSIONS
+from .._checks import check_bool, check_int, check_shape
+from .._io import _READ_EXTENSIONS, check_folder
 from .._methods.twopass import auto_window
 from .._scene import _check_ior
 from .checkpoint import run_rounds
@@ -93,6 +95,8 @@ def load_frames(frames, ior) -> list[np.ndarray]:
     for k, frame in enumerate(frames):
         try:
             image = _load_target(frame, ior)
+        except FileNotFoundError as err:
+            raise FileNotFoundError(f"`frames[{k}]`: {err}") from err
         except ValueError as err:
             raise ValueError(f"`frames[{k}]`: {err}") from err
         if isinstance(frame, (str, os.PathLike)):
@@ -125,8 +129,9 @@ def recover_sequence(
     - `warm`: warm-start each frame from the previous one (see the module); False
       recovers every frame cold.
     - `progress`: a progress bar over the frames.
-    - `checkpoint`: a file written after every frame (None: none); `resume`: continue
-      from it.
+    - `checkpoint`: a file written after every frame (None: none; its folder is created
+      if missing and must be writable); `resume`: continue from it (if it exists; needs
+      a `checkpoint`).
     - `callback`: called as ``callback(index, result)`` with each frame's
       `RecoveryResult`.
     - `options`: `recover_surface`'s keyword arguments (`extent`, `rest_depth`,
@@ -139,8 +144,33 @@ def recover_sequence(
     """
     if "initial" in options or "target" in options:
         raise ValueError("`recover_sequence` sets each frame's `target` and `initial` itself")
+    parameters = inspect.signature(recover_surface).parameters
+    unknown = sorted(set(options) - set(parameters))
+    if unknown:
+        raise ValueError(f"unknown arguments of recover_surface: {unknown}")
+    for name, p in parameters.items():
+        if name != "target" and p.default is p.empty and name not in options:
+            raise ValueError(f"`{name}` is required (an argument of recover_surface)")
     if callback is not None and not callable(callback):
         raise ValueError(f"`callback` must be callable or None, got {type(callback).__name__}")
+    warm = check_bool(warm, "warm")
+    progress = check_bool(progress, "progress")
+    resume = check_bool(resume, "resume")
+    if checkpoint is not None:
+        if not isinstance(checkpoint, (str, os.PathLike)):
+            raise ValueError(f"`checkpoint` must be a file path or None, got {checkpoint!r}")
+        if Path(checkpoint).is_dir():
+            raise ValueError(f"`checkpoint` {str(checkpoint)!r} is a directory, not a file")
+        folder = check_folder(Path(checkpoint).parent, "checkpoint")  # writable, or can be
+        folder.mkdir(parents=True, exist_ok=True)  # made: the first save is after a frame
+    elif resume:
+        raise ValueError("`resume=True` needs a `checkpoint` file to continue from")
+    if options.get("heights_shape") is not None:
+        check_shape(options["heights_shape"], "heights_shape", 2)
+    if options.get("samples_x", "auto") != "auto":
+        check_int(options["samples_x"], "samples_x", 1)
+        if options.get("channels_y") is not None:
+            check_int(options["channels_y"], "channels_y", 0)
     ior = _check_ior(options.get("ior", 1.333))
     images = load_frames(frames, ior)
     options = {**options, "normalize": False}  # files were scaled when read

@@ -15,21 +15,41 @@ import math
 
 import numpy as np
 
-from .._checks import check_int
+from .._checks import check_int, check_real_array
 from .._mesh import Mesh, MeshScene
 from .._scene import DirectionalLight, LensScene, PlaneReceiver
+from .design import _check_mask
 
 SUN_DIAMETER_DEG = 0.53
+# most photons per axis of the reference traces (16384^2: hours through the solid) and
+# most directions over the Sun's disc (each one a trace)
+MAX_PHOTONS_PER_AXIS = 1 << 14
+MAX_SUN_SAMPLES = 256
+
+
+def _image(value, name: str, shape=None) -> np.ndarray:
+    """`value` as a finite, non-negative float image (of `shape`), else a `ValueError`."""
+    a = check_real_array(value, name).astype(float)
+    if a.ndim == 0 or (shape is not None and a.shape != tuple(shape)):
+        want = f"the shape {tuple(shape)}" if shape is not None else "an image's shape"
+        raise ValueError(f"`{name}` must have {want}, got {a.shape}")
+    if a.size == 0 or not np.all(np.isfinite(a)) or a.min() < 0:
+        raise ValueError(f"`{name}` must be finite and non-negative")
+    return a
 
 
 def relative_l2(image, target, mask=None) -> float:
     """``|a / mean(a) - b / mean(b)|_2 / |b / mean(b)|_2`` over `mask` (both images scaled
-    to unit mean: the error does not depend on overall brightness)."""
-    a = np.asarray(image, float)
-    b = np.asarray(target, float)
+    to unit mean: the error does not depend on overall brightness). Both finite,
+    non-negative, of one shape; `mask` boolean (or 0/1) of that shape; the target not
+    all zero (inside `mask`)."""
+    b = _image(target, "target")
+    a = _image(image, "image", b.shape)
     if mask is not None:
-        m = np.asarray(mask, bool)
+        m = _check_mask(mask, b.shape)
         a, b = a[m], b[m]
+    if not b.max() > 0:
+        raise ValueError("`target` is zero everywhere (inside `mask`)")
     a = a / a.mean() if a.mean() > 0 else a
     b = b / b.mean()
     return float(np.linalg.norm(a - b) / np.linalg.norm(b))
@@ -119,10 +139,12 @@ def verify_lens(
     - `scene`: the designed `LensScene` (collimated light for the Sun test).
     - `target`: the target image on `scene.receiver`'s grid, ``(rows, cols)``.
     - `mask`: optional boolean ``(rows, cols)``: pixels the error is measured on.
-    - `photons_per_axis`: the reference's photon grid per axis (accuracy knob).
+    - `photons_per_axis`: the reference's photon grid per axis (accuracy knob), at most
+      `MAX_PHOTONS_PER_AXIS`.
     - `screen_shift`: relative change of the throw for the screen tests (0.05: 5%).
     - `sun_samples`: directions over the Sun's disc (each traced with
-      ``photons_per_axis / sqrt(sun_samples)`` photons per axis).
+      ``photons_per_axis / sqrt(sun_samples)`` photons per axis), at most
+      `MAX_SUN_SAMPLES`.
     - `samples`: the exported solid's top-surface grid (`lens_solid`).
 
     **Returns:** a `Verification`.
@@ -131,20 +153,15 @@ def verify_lens(
 
     if not isinstance(scene, LensScene):
         raise ValueError(f"`scene` must be a LensScene, got {type(scene).__name__}")
-    try:
-        target = np.asarray(target, float)
-    except (TypeError, ValueError) as err:
-        raise ValueError(f"`target` must be a real image, got {type(target).__name__}") from err
-    if target.shape != scene.receiver.shape:
-        raise ValueError(
-            f"`target` must have the screen's shape {scene.receiver.shape}, got {target.shape}"
-        )
     # checked before any tracing: a NaN target made every error NaN, sun_samples=0 a
     # ZeroDivisionError after the nominal trace
-    if not np.all(np.isfinite(target)) or target.min() < 0 or not target.max() > 0:
+    target = _image(target, "target", scene.receiver.shape)  # the screen's
+    if not target.max() > 0:
         raise ValueError("`target` must be finite, non-negative and not all zero")
-    check_int(photons_per_axis, "photons_per_axis", 2)
-    check_int(sun_samples, "sun_samples", 1)
+    if mask is not None and not np.any(target[_check_mask(mask, target.shape)] > 0):
+        raise ValueError("`target` is zero everywhere inside `mask`")
+    check_int(photons_per_axis, "photons_per_axis", 2, MAX_PHOTONS_PER_AXIS)
+    check_int(sun_samples, "sun_samples", 1, MAX_SUN_SAMPLES)
     number = isinstance(screen_shift, (int, float, np.number))
     if isinstance(screen_shift, bool) or not (number and 0.0 < float(screen_shift) < 1.0):
         raise ValueError(f"`screen_shift` must be a number in (0, 1), got {screen_shift!r}")

@@ -36,7 +36,14 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array
 
-from .._checks import check_int
+from .._checks import (
+    check_array,
+    check_choice,
+    check_int,
+    check_number,
+    check_real_array,
+    check_shape,
+)
 from .._gbuffer import (
     INTERSECTIONS,
     GeometryBuffers,
@@ -48,7 +55,9 @@ from .._gbuffer import (
 from .._light_view import LightView, light_view
 from .._mesh import MeshScene
 from .._raster import (
+    check_fits,
     check_memory_limit,
+    check_photon_work,
     splat_gaussian,
     sum_over_batches,
 )
@@ -56,6 +65,14 @@ from .._scene_checks import checks_scene_values
 from .._sharding import device_mesh
 
 METRICS = ("traversal", "error")
+DISCARDS = ("footprint", "samples")
+# most image-space intersection steps (`ray_geo` unrolls them: 100000 compiled for ever)
+MAX_ITERATIONS = 64
+# memory model of what does not grow with the photons, numbers of the scene's dtype: per
+# geometry-buffer texel (XLA's compiled temporaries and outputs: 64) and per caustic-map
+# texel and channel (the map, a batch's map, the receiver's lookups: 12 measured)
+_GBUFFER_FLOATS = 64
+_MAP_FLOATS = 16
 
 
 class CausticMapResult(eqx.Module):
@@ -92,7 +109,12 @@ def photon_bytes(channels: int, window: int, dtype) -> int:
     weight, a partial and two int32 scatter indices. On a CPU in float64 the measured
     cost is 65-85% of it for windows 5 to 13, both intersections, one or three
     channels (``tests/test_memory.py`` checks the bound)."""
-    size = jnp.dtype(dtype).itemsize
+    channels = check_int(channels, "channels", 1)
+    window = check_int(window, "window", 1)
+    try:
+        size = jnp.dtype(dtype).itemsize
+    except TypeError as err:
+        raise ValueError(f"`dtype` must be a NumPy dtype, got {dtype!r}") from err
     w2 = window * window
     return channels * (size * (2 * w2 + 8) + 8 * w2)
 
@@ -108,9 +130,8 @@ def _check_common(scene, map_resolution, intersection, iterations, memory_limit)
             "caustic maps do not test occlusion: the scene has occluders (use "
             "caustic_triangles, whose visibility='distance_map' handles them)"
         )
-    if intersection not in INTERSECTIONS:
-        raise ValueError(f"`intersection` must be one of {INTERSECTIONS}, got {intersection!r}")
-    check_int(iterations, "iterations", 0)
+    check_choice(intersection, "intersection", INTERSECTIONS)
+    check_int(iterations, "iterations", 0, MAX_ITERATIONS)
     if map_resolution is None:
         map_resolution = 2 * max(scene.receiver.shape)
     map_resolution = check_int(map_resolution, "map_resolution", 2)
@@ -118,20 +139,39 @@ def _check_common(scene, map_resolution, intersection, iterations, memory_limit)
 
 
 def _check_sigma(sigma, map_resolution: int, photons: int) -> float:
-    if isinstance(sigma, str):
-        if sigma != "auto":
-            raise ValueError(f"`sigma` must be a positive number or 'auto', got {sigma!r}")
+    """A splat from a thousandth of a texel (narrower underflowed to NaN) to the map's
+    side (wider covers nothing more), or ``"auto"``."""
+    if isinstance(sigma, str) and sigma == "auto":
         return max(0.5, map_resolution / photons)
-    try:
-        value = float(sigma)
-    except (TypeError, ValueError) as err:
-        raise ValueError(f"`sigma` must be a positive number or 'auto', got {sigma!r}") from err
-    if not (math.isfinite(value) and value > 0):
+    if isinstance(sigma, str):
         raise ValueError(f"`sigma` must be a positive number or 'auto', got {sigma!r}")
-    return value
+    return check_number(sigma, "sigma", low=1e-3, high=map_resolution)
 
 
-def _view_and_buffers(scene, gbuffer_resolution: int) -> GeometryBuffers:
+def _check_memory(scene, photons: int, map_resolution, gbuffer_resolution, per_photon, limit):
+    """What does not grow with the photons (the geometry buffers, the caustic map and
+    the receiver's lookups) and one photon (or cluster of `photons`) must fit in the
+    limit; refused, with the estimate, before anything is compiled."""
+    channels, size = len(scene.iors), jnp.dtype(scene.generator.vertices.dtype).itemsize
+    fixed = size * (
+        _GBUFFER_FLOATS * gbuffer_resolution**2 + _MAP_FLOATS * channels * map_resolution**2
+    )
+    check_fits(
+        fixed,
+        limit,
+        f"the {gbuffer_resolution}^2 geometry buffers and the {map_resolution}^2 caustic map",
+        "lower `gbuffer_resolution` or `map_resolution`",
+    )
+    check_fits(
+        photons * per_photon,
+        limit,
+        f"{'one photon' if photons == 1 else f'a cluster of {photons} photons'} "
+        f"({per_photon} bytes each: its splat window, from `sigma`)",
+        "pass a smaller `sigma`",
+    )
+
+
+def _view_and_buffers(scene, gbuffer_resolution: int, memory_limit: int) -> GeometryBuffers:
     view = light_view(scene)
     if not isinstance(view.window, jax.core.Tracer):
         if not np.all(np.isfinite(np.asarray(view.window))):
@@ -146,12 +186,12 @@ def _view_and_buffers(scene, gbuffer_resolution: int) -> GeometryBuffers:
         window = gbuffer_resolution  # every face may cover the whole view
     else:
         window = raster_window(scene, view, gbuffer_resolution)
-    return _buffers(scene, view, gbuffer_resolution, window)
+    return _buffers(scene, view, gbuffer_resolution, window, memory_limit)
 
 
 @eqx.filter_jit
-def _buffers(scene, view, resolution, window):
-    return geometry_buffers(scene, view, resolution, window)
+def _buffers(scene, view, resolution, window, memory_limit):
+    return geometry_buffers(scene, view, resolution, window, memory_limit=memory_limit)
 
 
 def _splat(view: LightView, hits, shape, sigma, window) -> Array:
@@ -173,6 +213,11 @@ def project_caustic_map(
     """The final pass: irradiance ``(C, ...)`` at receiver `points` ``(..., 3)`` with unit
     `normals`, from a caustic map ``(C, R, R)`` (flux per texel), looked up bilinearly at
     the points' projection in the light's view (no shadow test)."""
+    if not isinstance(view, LightView):
+        raise ValueError(f"`view` must be a LightView, got {type(view).__name__}")
+    caustic_map = check_array(caustic_map, "caustic_map", (None, None, None))
+    points = check_array(points, "points", (..., 3))
+    normals = check_array(normals, "normals", tuple(points.shape))
     shape = caustic_map.shape[1:]
     u, v = view.project(points)
     x, y = view.to_texels(u, v, shape)
@@ -290,7 +335,11 @@ def caustics_mapping(
     - `memory_limit`: bytes of photon buffer per batch (`photon_bytes` per photon);
       photons beyond it are shaded and splatted in further batches (a loop: each batch
       makes its own photons from its index, so the ``N x N`` grid never exists and the
-      compiled graph does not grow with ``N``). Default 1 GiB.
+      compiled graph does not grow with ``N``). Default 1 GiB. Refused before anything
+      is compiled, with the estimate: geometry buffers and caustic map over the limit
+      (``64 G^2 + 16 C R^2`` numbers), one photon over it (a huge `sigma`), over 2^31
+      photons (``N`` above 46340) or over 2^20 batches (`jaxcaustics._raster`'s
+      `MAX_PHOTONS`, `MAX_BATCHES`).
     - `devices`: ``None``: the default device only. An int ``n`` (the first ``n`` of
       `jax.devices()`) or a list of devices: the batches are split across them
       (`jax.shard_map` over `jaxcaustics._sharding.device_mesh(devices)`, at least one
@@ -310,17 +359,20 @@ def caustics_mapping(
     window = 2 * math.ceil(3.0 * sigma) + 1
     dtype = scene.generator.vertices.dtype
     per_photon = photon_bytes(len(scene.iors), window, dtype)
+    check_photon_work(photons * photons, 1, "photons")
+    _check_memory(scene, 1, map_resolution, gbuffer_resolution, per_photon, memory_limit)
     mesh = None if devices is None else device_mesh(devices)
     n_devices = 1 if mesh is None else mesh.size
     batch = max(1, min(-(-photons * photons // n_devices), memory_limit // per_photon))
     # photon indices are int32, up to the last batch of the last device's padded share
     batches = math.ceil(photons * photons / batch)
+    check_photon_work(photons * photons, batches, "photons")
     if math.ceil(batches / n_devices) * n_devices * batch > 2**31:
         raise ValueError(
             f"`photons` {photons}: its batches of {batch} photons index past int32 (at most "
             "about 46000 per axis; a smaller `memory_limit` leaves more room)"
         )
-    buffers = _view_and_buffers(scene, gbuffer_resolution)
+    buffers = _view_and_buffers(scene, gbuffer_resolution, memory_limit)
     map_shape = (map_resolution, map_resolution)
     cmap, images, missed, splatted = _dense_map(
         scene, buffers, photons, map_shape, sigma, window, batch, intersection, iterations, mesh
@@ -603,7 +655,14 @@ def adaptive_caustic_map(
       object's normals, which costs accuracy on thin objects: on the benchmark's torus
       at 1024^2 photons 0.131 with 256^2 buffers against 0.116 with 1024^2).
 
-    - `capacity`: clusters per level for the all-jit traversal (``None``: host-driven).
+    - `capacity`: clusters per level for the all-jit traversal (``None``: host-driven),
+      from the first level's ``(base / 2)^2`` to the finest level's ``(photons / 2)^2``.
+
+    Checked before anything is compiled, as `caustics_mapping` (memory, at most 2^31
+    photons in the equivalent grid, at most 2^20 batches of `memory_limit` at the
+    worst, every cluster refined; one cluster of four photons must fit). `check_from`
+    is unused with ``metric="traversal"`` but accepted (the benchmarks pass one value
+    to both metrics).
 
     **Returns:** a `CausticMapResult` with per-level counts in `stats`. Differentiable
     with respect to the scene through the photons' landing points (the traversal's
@@ -622,13 +681,12 @@ def adaptive_caustic_map(
         raise ValueError(
             f"`photons` must be `base` times a power of two, got photons={photons}, base={base}"
         )
-    if metric not in METRICS:
-        raise ValueError(f"`metric` must be one of {METRICS}, got {metric!r}")
-    if discard not in ("footprint", "samples"):
-        raise ValueError(f"`discard` must be 'footprint' or 'samples', got {discard!r}")
+    check_photon_work(photons * photons, 1, "photons")
+    check_choice(metric, "metric", METRICS)
+    check_choice(discard, "discard", DISCARDS)
     check_from = check_int(check_from, "check_from", 1)
-    if capacity is not None:
-        capacity = check_int(capacity, "capacity", (base // 2) ** 2)
+    if capacity is not None:  # at most every cluster of the finest level
+        capacity = check_int(capacity, "capacity", (base // 2) ** 2, (photons // 2) ** 2)
     sigma = _check_sigma(sigma, map_resolution, photons)
     if gbuffer_resolution is None:
         gbuffer_resolution = min(photons, 1024)
@@ -639,7 +697,10 @@ def adaptive_caustic_map(
     channels = len(scene.iors)
     dtype = scene.generator.vertices.dtype
     per_photon = photon_bytes(channels, window, dtype)
+    _check_memory(scene, 4, map_resolution, gbuffer_resolution, per_photon, memory_limit)
     cap = max(1, memory_limit // (4 * per_photon))  # clusters per batch
+    # at most every cluster of every level, `cap` at a time
+    check_photon_work(photons * photons, -(-(photons * photons // 3) // cap), "photons")
     cfg = _AdaptiveConfig(
         base,
         max_level,
@@ -652,7 +713,7 @@ def adaptive_caustic_map(
         iterations,
         discard,
     )
-    buffers = _view_and_buffers(scene, gbuffer_resolution)
+    buffers = _view_and_buffers(scene, gbuffer_resolution, memory_limit)
     if capacity is None:
         cmap, total, stats = _traverse_on_host(scene, buffers, cfg, cap)
     else:
@@ -702,33 +763,47 @@ class PinholeCamera(eqx.Module):
     shape: tuple[int, int] = eqx.field(static=True)
 
     def __init__(self, position, look_at, *, fov: float = 45.0, shape=(240, 320), up=(0, 1, 0)):
+        for name, value in (("position", position), ("look_at", look_at), ("up", up)):
+            arr = check_real_array(value, name)
+            if arr.shape != (3,) or not np.all(np.isfinite(arr)):
+                raise ValueError(f"`{name}` must be 3 finite numbers, got {value!r}")
         self.position = jnp.asarray(position, float)
         self.look_at = jnp.asarray(look_at, float)
         self.up = jnp.asarray(up, float)
-        for name, value in (("position", self.position), ("look_at", self.look_at)):
-            if value.shape != (3,) or not np.all(np.isfinite(np.asarray(value))):
-                raise ValueError(f"`{name}` must be 3 finite numbers, got {value}")
-        if not 0 < float(fov) < 180:
-            raise ValueError(f"`fov` must be in (0, 180) degrees, got {fov!r}")
-        rows, cols = (int(k) for k in shape)
-        if rows < 1 or cols < 1:
-            raise ValueError(f"`shape` must be two positive ints, got {shape!r}")
+        self.fov = check_number(fov, "fov", low=0.0, high=180.0, low_open=True, high_open=True)
+        self.shape = check_shape(shape, "shape")
         forward = self.look_at - self.position
         if float(jnp.linalg.norm(jnp.cross(forward, self.up))) <= 1e-9 * float(
             jnp.linalg.norm(forward) + 1e-300
         ):
             raise ValueError("`look_at` must differ from `position`, and `up` not be along it")
-        self.fov = float(fov)
-        self.shape = (rows, cols)
-
-    def rays(self) -> tuple[Array, Array]:
-        """Unit directions ``(rows, cols, 3)`` through the pixel centres."""
+        if not float(self.position[2]) > 0.0:  # below the screen it sees its underside
+            raise ValueError(f"`position` must be above the receiver z = 0, got {position!r}")
+        # the image's corner rays span its rays' z components: one must go down
+        f, r, u = (np.asarray(a, float) for a in self._frame())
+        half = math.tan(math.radians(self.fov) / 2)
         rows, cols = self.shape
+        corners = [
+            f + sx * half * cols / rows * r + sy * half * u for sx in (-1, 1) for sy in (-1, 1)
+        ]
+        if not min(c[2] for c in corners) < 0.0:
+            raise ValueError(
+                f"`look_at` {look_at!r}: the camera looks nowhere (no pixel sees the "
+                "receiver plane z = 0 below it)"
+            )
+
+    def _frame(self) -> tuple[Array, Array, Array]:
+        """Unit forward, right and up vectors of the image."""
         forward = self.look_at - self.position
         forward = forward / jnp.linalg.norm(forward)
         right = jnp.cross(forward, self.up)
         right = right / jnp.linalg.norm(right)
-        up = jnp.cross(right, forward)
+        return forward, right, jnp.cross(right, forward)
+
+    def rays(self) -> tuple[Array, Array]:
+        """Unit directions ``(rows, cols, 3)`` through the pixel centres."""
+        rows, cols = self.shape
+        forward, right, up = self._frame()
         half = math.tan(math.radians(self.fov) / 2)
         y = (1 - 2 * (jnp.arange(rows) + 0.5) / rows) * half
         x = (2 * (jnp.arange(cols) + 0.5) / cols - 1) * half * cols / rows
@@ -746,6 +821,14 @@ def camera_image(
     ``E_caustic`` the caustic map projected as in `project_caustic_map`. The generator
     itself is not drawn (only its shadow and caustic). Same units as the images;
     **returns** ``(rows, cols)`` or ``(rows, cols, channels)``."""
+    for name, value, kind in (
+        ("scene", scene, MeshScene),
+        ("result", result, CausticMapResult),
+        ("camera", camera, PinholeCamera),
+    ):
+        if not isinstance(value, kind):
+            raise ValueError(f"`{name}` must be a {kind.__name__}, got {type(value).__name__}")
+    albedo = check_number(albedo, "albedo", low=0.0, high=1.0)
     origin, directions = camera.rays()
     dtype = result.caustic_map.dtype
     origin, directions = origin.astype(dtype), directions.astype(dtype)

@@ -10,23 +10,27 @@ fitting.
 
 from __future__ import annotations
 
+import inspect
 import math
-import numbers
 from typing import Any
 
 import equinox as eqx
 import jax.numpy as jnp
 from jaxtyping import Array, Float
 
+from .._checks import check_bool, check_int, check_number
 from .._ellipsoid import EllipsoidScene, trace_exit_rays
 from .._mesh import MeshScene
-from .._raster import check_memory_limit
+from .._raster import check_fits, check_memory_limit
 from .._scene import DirectionalLight
 from .._scene_checks import checks_scene_values
 from .._spot_light_fit import FitInfo, fit_spot_lights
 from .._spot_lights import Glossy, Lambertian, SpotLights, render_spot_lights
 
 _RAY_FLOATS = 64  # per traced ray: the exit ray, tracing and fit temporaries (estimate)
+# per rendered point (``samples^2`` per pixel, all at once): XLA's compiled temporaries of
+# `render_spot_lights` are 42 numbers per point, whatever the number of lights
+_POINT_FLOATS = 64
 
 
 def ray_bytes(dtype=jnp.float64) -> int:
@@ -116,26 +120,57 @@ def spot_lights(
     - `memory_limit`: bytes for the traced rays of one channel (default 1 GiB,
       `ray_bytes` per ray). The fit needs all of a grid's rays at once, so they are not
       batched: a grid over the limit raises a `ValueError` before anything is compiled,
-      naming the largest `rays_per_axis` that fits (`max_rays_per_axis`).
+      naming the largest `rays_per_axis` that fits (`max_rays_per_axis`). The render
+      evaluates every point at once (``samples^2`` per pixel, `_POINT_FLOATS` numbers
+      each): over the limit, refused the same way. The same limit is passed on to
+      `trace_exit_rays`, `fit_spot_lights` and `render_spot_lights`.
     - `**fit_knobs`: passed to `fit_spot_lights` (`max_lights`, `energy_fraction`,
-      `resolution`, `cells`, thresholds...).
+      `resolution`, `cells`, thresholds...); a name it does not take is refused.
+
+    Checked before anything is traced: ints are ints (no bools or floats), `max_gain` a
+    positive finite number, `intensity_correction` a bool, `lights` a `SpotLights`;
+    with `lights`, `rays_per_axis` and fit knobs (unused) are refused.
 
     **Returns:** a `SpotLightResult`.
     """
     _check_scene(scene)
+    if lights is not None and not isinstance(lights, SpotLights):
+        raise ValueError(f"`lights` must be SpotLights, got {type(lights).__name__}")
     if lights is not None and fit_knobs:
         raise ValueError(f"`lights` were given: nothing to fit with {sorted(fit_knobs)}")
+    fit_names = set(inspect.signature(fit_spot_lights).parameters) - {"rays"}
+    unknown = sorted(set(fit_knobs) - fit_names)
+    if unknown:
+        raise ValueError(
+            f"`{unknown[0]}` is not a knob of spot_lights or fit_spot_lights (the fit's: "
+            f"{', '.join(sorted(fit_names))})"
+        )
+    rays_per_axis = check_int(rays_per_axis, "rays_per_axis", 2)
+    if lights is not None and rays_per_axis != 256:
+        raise ValueError(
+            f"`lights` were given: nothing is traced with `rays_per_axis` {rays_per_axis}"
+        )
+    samples = check_int(samples, "samples", 1)
+    check_number(max_gain, "max_gain", low=0.0, low_open=True)
+    intensity_correction = check_bool(intensity_correction, "intensity_correction")
     memory_limit = check_memory_limit(memory_limit)
     dtype = jnp.result_type(scene.light.direction)
     per_ray = ray_bytes(dtype)
-    if lights is None and isinstance(rays_per_axis, numbers.Integral):
-        if int(rays_per_axis) ** 2 * per_ray > memory_limit:
-            raise ValueError(
-                f"`rays_per_axis` {rays_per_axis} needs {rays_per_axis**2 * per_ray} bytes of "
-                f"traced rays ({per_ray} per ray), over `memory_limit` {memory_limit}: the fit "
-                "needs all rays at once; the largest `rays_per_axis` that fits is "
-                f"{max_rays_per_axis(memory_limit, dtype)} (or raise `memory_limit`)"
-            )
+    if lights is None:
+        check_fits(
+            rays_per_axis**2 * per_ray,
+            memory_limit,
+            f"`rays_per_axis` {rays_per_axis} ({rays_per_axis}^2 traced rays, {per_ray} bytes "
+            "each, all at once for the fit)",
+            f"the largest `rays_per_axis` that fits is {max_rays_per_axis(memory_limit, dtype)}",
+        )
+    rows, cols = scene.receiver.shape
+    check_fits(
+        samples * samples * rows * cols * _POINT_FLOATS * jnp.dtype(dtype).itemsize,
+        memory_limit,
+        f"rendering {samples}^2 points in each of {rows} x {cols} pixels at once",
+        "lower `samples` or the receiver's pixels",
+    )
     occluders = tuple(getattr(scene, "occluders", ())) if isinstance(scene, EllipsoidScene) else ()
     # the fit's units: power for unit irradiance across the light; the library's images
     # are relative to the irradiance on a horizontal plane
@@ -143,8 +178,8 @@ def spot_lights(
     images, sets, infos, missed = [], [], [], []
     for channel in range(len(scene.iors)):
         if lights is None:
-            rays = trace_exit_rays(scene, rays_per_axis, channel=channel)
-            fitted, info = fit_spot_lights(rays, **fit_knobs)
+            rays = trace_exit_rays(scene, rays_per_axis, channel=channel, memory_limit=memory_limit)
+            fitted, info = fit_spot_lights(rays, memory_limit=memory_limit, **fit_knobs)
             infos.append(info)
             missed.append(1.0 - info.fraction)
         else:
@@ -159,6 +194,7 @@ def spot_lights(
             occluders=occluders,
             max_gain=max_gain,
             intensity_correction=intensity_correction,
+            memory_limit=memory_limit,
         )
         images.append(image * scale)
     image = images[0] if len(images) == 1 else jnp.stack(images, axis=-1)

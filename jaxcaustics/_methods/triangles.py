@@ -34,11 +34,13 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Bool, Float
 
-from .._checks import check_int
+from .._checks import check_bool, check_choice, check_int, check_number
 from .._mesh import MeshScene
 from .._photons import Photons, lens_photons, mesh_photons
 from .._raster import (
+    check_fits,
     check_memory_limit,
+    check_photon_work,
     pixel_coordinates,
     rasterize_exact,
     rasterize_gouraud,
@@ -50,9 +52,14 @@ from .._raster import (
 from .._scene import LensScene, PlaneReceiver
 from .._scene_checks import checks_scene_values
 from .._sharding import device_mesh
+from .twopass import MAX_HIT_ITERATIONS
 
 RECONSTRUCTIONS = ("exact", "gouraud")
+VISIBILITIES = ("exact", "distance_map")
 MAX_AUTO_WINDOW = 32
+# numbers per receiver pixel and channel besides the photons: the image being summed,
+# one batch's image, its scatter and the result
+_IMAGE_FLOATS = 4
 
 
 class TrianglesResult(eqx.Module):
@@ -232,6 +239,19 @@ def _window_from_histogram(histogram, flux_fraction: float) -> int:
     return int(min(MAX_AUTO_WINDOW, max(1, needed)))
 
 
+def _check_photons_receiver(photons, receiver) -> None:
+    if not isinstance(photons, Photons):
+        raise ValueError(f"`photons` must be a Photons image, got {type(photons).__name__}")
+    if not isinstance(receiver, PlaneReceiver):
+        raise ValueError(f"`receiver` must be a PlaneReceiver, got {type(receiver).__name__}")
+
+
+def _check_window(window, receiver: PlaneReceiver) -> int:
+    """An int window: at least 1, at most one past the receiver's larger side (a larger
+    block reaches no more pixels; `window=100000` asked for terabytes)."""
+    return check_int(window, "window", 1, max(receiver.shape) + 1)
+
+
 def triangle_window(photons: Photons, receiver: PlaneReceiver, flux_fraction: float = 0.999) -> int:
     """The smallest triangle window (pixels) that holds whole the triangles carrying
     `flux_fraction` of the valid flux, capped at `MAX_AUTO_WINDOW`.
@@ -239,8 +259,10 @@ def triangle_window(photons: Photons, receiver: PlaneReceiver, flux_fraction: fl
     Near silhouettes and folds a few triangles stretch over huge areas (neighbouring
     photons that part ways); sizing the window for them would cost ``window^2`` per
     triangle for all triangles. Their flux beyond the window is reported as missed.
-    Needs concrete values (call it outside `jit`).
+    Needs concrete values (call it outside `jit`). `flux_fraction` in ``(0, 1]``.
     """
+    _check_photons_receiver(photons, receiver)
+    flux_fraction = check_number(flux_fraction, "flux_fraction", low=0.0, high=1.0, low_open=True)
     histogram = _extent_histogram_jit(photons, receiver.extent, receiver.shape)
     return _window_from_histogram(histogram, flux_fraction)
 
@@ -258,25 +280,20 @@ def triangles_image(
     caustic triangles (the photons' terminal positions are taken on the plane ``z = 0``).
 
     **Returns:** ``(images, missed_flux_fraction)`` of shapes ``(channels, rows, cols)``
-    and ``(channels,)``. See `caustic_triangles` for the knobs.
+    and ``(channels,)``. See `caustic_triangles` for the knobs (`window`: ``"auto"`` or
+    an int up to one past the receiver's larger side).
     """
-    if reconstruction not in RECONSTRUCTIONS:
-        raise ValueError(
-            f"`reconstruction` must be one of {RECONSTRUCTIONS}, got {reconstruction!r}"
-        )
-    if isinstance(supersample, bool) or not isinstance(supersample, int) or supersample < 1:
-        raise ValueError(f"`supersample` must be an int >= 1, got {supersample!r}")
+    _check_photons_receiver(photons, receiver)
+    check_choice(reconstruction, "reconstruction", RECONSTRUCTIONS)
+    supersample = check_int(supersample, "supersample", 1)
+    batch_size = check_int(batch_size, "batch_size", 1)
     shape, extent = receiver.shape, receiver.extent
-    if window == "auto":
-        if isinstance(photons.position, jax.core.Tracer):
-            raise ValueError(
-                "window='auto' needs concrete scene values; under jit/vmap pass an int"
-            )
+    if not _is_auto(window):
+        window = _check_window(window, receiver)
+    elif isinstance(photons.position, jax.core.Tracer):
+        raise ValueError("window='auto' needs concrete scene values; under jit/vmap pass an int")
+    else:
         window = triangle_window(photons, receiver)
-    if isinstance(window, bool) or not isinstance(window, int) or window < 1:
-        raise ValueError(f"`window` must be an int >= 1 or 'auto', got {window!r}")
-    if isinstance(batch_size, bool) or not isinstance(batch_size, int) or batch_size < 1:
-        raise ValueError(f"`batch_size` must be an int >= 1, got {batch_size!r}")
     return _triangles_image(photons, extent, shape, reconstruction, window, supersample, batch_size)
 
 
@@ -285,8 +302,17 @@ def splat_photons(photons: Photons, receiver: PlaneReceiver, sigma, window: int 
 
     Each photon carries its share of the grid's flux (`Photons.flux`) and spreads it with
     a normalised Gaussian of standard deviation `sigma` *pixels* (the splat radius: too
-    small leaves dots, too large blurs). **Returns:** ``(channels, rows, cols)``.
+    small leaves dots, too large blurs): a number from 1e-3 to the receiver's larger
+    side (a traced `sigma` needs `window`). `window`: ``None`` (``2 ceil(3 sigma) + 1``)
+    or an int up to ``2 max(rows, cols) + 1``. **Returns:** ``(channels, rows, cols)``.
     """
+    _check_photons_receiver(photons, receiver)
+    if window is not None:
+        window = check_int(window, "window", 1, 2 * max(receiver.shape) + 1)
+    if not isinstance(sigma, jax.core.Tracer):
+        check_number(sigma, "sigma", low=1e-3, high=max(receiver.shape))
+    elif window is None:
+        raise ValueError("`sigma` is traced: pass `window` (an int)")
     shape, extent = receiver.shape, receiver.extent
     pixel_area = (extent[1] - extent[0]) / shape[1] * (extent[3] - extent[2]) / shape[0]
     points = pixel_coordinates(photons.position[..., :2], extent, shape)
@@ -306,25 +332,83 @@ def splat_photons(photons: Photons, receiver: PlaneReceiver, sigma, window: int 
 
 
 @eqx.filter_jit
-def trace_photons(scene, grid: tuple[int, int], hit_iterations: int = 3, batch_size: int = 4096):
-    """The photon hit location image of a `LensScene` or `MeshScene` (jit-compiled)."""
+def _trace_photons(scene, grid: tuple[int, int], hit_iterations: int, batch_size: int):
     if isinstance(scene, LensScene):
         return lens_photons(scene, grid, hit_iterations)
     return mesh_photons(scene, grid, batch_size)
 
 
-def _check_grid(photons) -> tuple[int, int]:
-    if isinstance(photons, (int, np.integer)) and not isinstance(photons, bool):
-        photons = (int(photons), int(photons))
-    if isinstance(photons, str):
-        raise ValueError(f"`photons` must be an int or (rows, cols), got {photons!r}")
-    try:
-        grid = tuple(int(p) for p in photons)
-    except (TypeError, ValueError) as err:
-        raise ValueError(f"`photons` must be an int or (rows, cols), got {photons!r}") from err
-    if len(grid) != 2 or min(grid) < 2:
-        raise ValueError(f"`photons` must give at least 2 x 2 photons, got {photons!r}")
-    return grid  # type: ignore[return-value]
+def trace_photons(
+    scene,
+    grid: tuple[int, int],
+    hit_iterations: int = 3,
+    batch_size: int = 4096,
+    *,
+    memory_limit: int | None = None,
+):
+    """The photon hit location image of a `LensScene` or `MeshScene` (jit-compiled).
+
+    `grid`: ``n`` or ``(rows, cols)`` photons (as `caustic_triangles`' `photons`);
+    `hit_iterations`: lens scenes only (Newton steps, ``[0, 100]``); `batch_size`: mesh
+    scenes only (rays per batch of the triangle search). The whole grid is traced at
+    once: its photons (`band_bytes`) must fit in `memory_limit` (default 1 GiB).
+    """
+    _check_scene(scene)
+    grid = _check_grid(grid, "grid")
+    hit_iterations = check_int(hit_iterations, "hit_iterations", 0, MAX_HIT_ITERATIONS)
+    batch_size = check_int(batch_size, "batch_size", 1)
+    memory_limit = check_memory_limit(memory_limit)
+    if isinstance(scene, LensScene):
+        _refuse_unused("batch_size", batch_size, 4096, "mesh scenes")
+    else:
+        _refuse_unused("hit_iterations", hit_iterations, 3, "lens scenes")
+    channels, dtype, faces = _sizes(scene)
+    check_photon_work(grid[0] * grid[1], 1, "grid")
+    check_fits(
+        band_bytes(grid[0] * grid[1], channels, dtype, faces, batch_size if faces else 0),
+        memory_limit,
+        f"the {grid[0]} x {grid[1]} photon grid, traced at once",
+        "pass a smaller `grid`" + (" or `batch_size`" if faces else ""),
+    )
+    return _trace_photons(scene, grid, hit_iterations, batch_size)
+
+
+def _check_scene(scene) -> None:
+    if not isinstance(scene, (LensScene, MeshScene)):
+        raise ValueError(f"`scene` must be a LensScene or a MeshScene, got {type(scene).__name__}")
+
+
+def _sizes(scene) -> tuple[int, np.dtype, int]:
+    """Channels, dtype and (mesh scenes) generator faces of a lens or mesh scene."""
+    if isinstance(scene, LensScene):
+        return len(scene.iors), np.dtype(scene.surface.heights.dtype), 0
+    faces = int(scene.generator.faces.shape[0])
+    return len(scene.iors), np.dtype(scene.generator.vertices.dtype), faces
+
+
+def _is_auto(value) -> bool:
+    return isinstance(value, str) and value == "auto"
+
+
+def _refuse_unused(name: str, value, default, applies: str) -> None:
+    """A knob set (to anything but its default) where it does not apply: a `ValueError`
+    naming it, never silently ignored."""
+    if value is not default and value != default:
+        raise ValueError(f"`{name}` applies to {applies} only; got {value!r} (leave it out)")
+
+
+def _check_grid(photons, name: str = "photons") -> tuple[int, int]:
+    """``n`` or ``(rows, cols)``, ints >= 2 (no bools or floats), as ``(rows, cols)``."""
+    if isinstance(photons, np.ndarray) and photons.ndim == 1:
+        photons = tuple(photons)
+    if not isinstance(photons, (tuple, list)):
+        if isinstance(photons, (int, np.integer)) and not isinstance(photons, (bool, np.bool_)):
+            photons = (photons, photons)
+        else:
+            raise ValueError(f"`{name}` must be an int or (rows, cols), got {photons!r}")
+    if len(photons) != 2:
+        raise ValueError(f"`{name}` must be an int or (rows, cols), got {photons!r}")
+    return check_int(photons[0], name, 2), check_int(photons[1], name, 2)
 
 
 class CubeMapOptions(eqx.Module):
@@ -347,6 +431,19 @@ class CubeMapOptions(eqx.Module):
     shadow_test: bool = eqx.field(static=True, default=True)
     tolerance: float = eqx.field(static=True, default=0.02)
     window: int | None = eqx.field(static=True, default=None)
+
+    def __check_init__(self):
+        for name, low in (
+            ("resolution", 2),
+            ("layers", 1),
+            ("linear_steps", 1),
+            ("secant_iterations", 0),
+        ):
+            check_int(getattr(self, name), name, low)
+        check_bool(self.shadow_test, "shadow_test")
+        check_number(self.tolerance, "tolerance", low=0.0)
+        if self.window is not None:
+            check_int(self.window, "window", 1)
 
 
 def _cube_centre(scene: MeshScene) -> Array:
@@ -586,33 +683,68 @@ def caustic_triangles(
       whole grid at once: a grid over half the `memory_limit` raises a `ValueError`,
       and `devices` must be ``None``.
 
+    Checks, before anything is compiled: ints are ints (no bools or floats), `window` at
+    most one past the receiver's larger side, `hit_iterations` in ``[0, 100]``; a knob
+    set where it does not apply (`hit_iterations` on a mesh, `batch_size` on a lens,
+    `supersample` with ``"exact"``, `cube_map` without ``"distance_map"``, and
+    `reconstruction`, `window`, `supersample`, `triangle_batch` with it) is refused by
+    name. Memory and work (`memory_limit`): the receiver's images, the smallest band
+    (2 photon rows, with a halo for Gouraud, and one ray batch) in half the limit and
+    one triangle (`triangle_bytes` at the window; for ``"auto"``, once the window is
+    known, before the rasteriser is compiled) in a quarter must fit, else a
+    `ValueError` with the estimate and the knob to change. An absurd photon count is
+    refused, not run for days: at most 2^31 photons (a 46340^2 grid,
+    `jaxcaustics._raster.MAX_PHOTONS`) in at most 2^20 batches (bands times rasteriser
+    batches, `MAX_BATCHES`: more means a `memory_limit` far too small for `photons`).
+    An explicit `triangle_batch` is taken as given (at most a band's triangles).
+
     **Returns:** a `TrianglesResult` (image, missed-flux fraction, photons, stats).
     Differentiable with respect to the scene's arrays (the lens heights, the mesh
     vertices, the light), banded and sharded too.
     """
-    if not isinstance(scene, (LensScene, MeshScene)):
-        raise ValueError(f"`scene` must be a LensScene or a MeshScene, got {type(scene).__name__}")
+    _check_scene(scene)
     grid = _check_grid(photons)
-    check_int(hit_iterations, "hit_iterations", 0)
-    if reconstruction not in RECONSTRUCTIONS:
-        raise ValueError(
-            f"`reconstruction` must be one of {RECONSTRUCTIONS}, got {reconstruction!r}"
-        )
+    check_choice(reconstruction, "reconstruction", RECONSTRUCTIONS)
+    check_choice(visibility, "visibility", VISIBILITIES)
+    hit_iterations = check_int(hit_iterations, "hit_iterations", 0, MAX_HIT_ITERATIONS)
     supersample = check_int(supersample, "supersample", 1)
     memory_limit = check_memory_limit(memory_limit)
-    if visibility not in ("exact", "distance_map"):
-        raise ValueError(f"`visibility` must be 'exact' or 'distance_map', got {visibility!r}")
-    if window != "auto":
-        window = check_int(window, "window", 1)
-    channels = len(scene.iors)
-    dtype = (
-        scene.surface.heights if isinstance(scene, LensScene) else scene.generator.vertices
-    ).dtype
-    faces = int(scene.generator.faces.shape[0]) if isinstance(scene, MeshScene) else 0
+    if not _is_auto(window):
+        window = _check_window(window, scene.receiver)
+    if batch_size is not None:
+        batch_size = check_int(batch_size, "batch_size", 1)
+    if triangle_batch is not None:
+        triangle_batch = check_int(triangle_batch, "triangle_batch", 1)
+    if cube_map is not None and not isinstance(cube_map, CubeMapOptions):
+        raise ValueError(f"`cube_map` must be a CubeMapOptions, got {type(cube_map).__name__}")
+    # knobs where they do not apply: refused by name unless at their defaults
+    if isinstance(scene, LensScene):
+        _refuse_unused("batch_size", batch_size, None, "mesh scenes")
+    else:
+        _refuse_unused("hit_iterations", hit_iterations, 3, "lens scenes")
+    if visibility == "distance_map":
+        for name, value, default in (
+            ("reconstruction", reconstruction, "exact"),
+            ("window", window, "auto"),
+            ("supersample", supersample, 2),
+            ("triangle_batch", triangle_batch, None),
+        ):
+            _refuse_unused(name, value, default, "visibility='exact'")
+    else:
+        _refuse_unused("cube_map", cube_map, None, "visibility='distance_map'")
+        if reconstruction == "exact":
+            _refuse_unused("supersample", supersample, 2, "reconstruction='gouraud'")
+    channels, dtype, faces = _sizes(scene)
+    rows_px, cols_px = scene.receiver.shape
+    check_fits(
+        _IMAGE_FLOATS * channels * rows_px * cols_px * dtype.itemsize,
+        memory_limit,
+        f"the {rows_px} x {cols_px} receiver's images ({channels} channel(s))",
+        "use fewer receiver pixels",
+    )
     if batch_size is None:
         per_ray = band_bytes(0, 0, dtype, faces, 1) if faces else 1
         batch_size = max(1, min(4096, memory_limit // 4 // per_ray))
-    batch_size = check_int(batch_size, "batch_size", 1)
     ray_batch = batch_size if faces else 0
     mesh = None if devices is None else device_mesh(devices)
     n_devices = 1 if mesh is None else mesh.size
@@ -621,6 +753,15 @@ def caustic_triangles(
     row_bytes = band_bytes(grid[1], channels, dtype)
     budget = memory_limit // 2 - band_bytes(0, 0, dtype, faces, ray_batch)
     halo = 1 if reconstruction == "gouraud" else 0
+    check_photon_work(grid[0] * grid[1], 1, "photons")
+    check_fits(
+        band_bytes((2 + 2 * halo) * grid[1], channels, dtype, faces, ray_batch),
+        memory_limit,
+        f"the smallest band of the photon grid ({2 + 2 * halo} rows of {grid[1]} photons"
+        + (f", and a ray batch of {ray_batch} rays over {faces} faces)" if faces else ")"),
+        "pass fewer `photons` per row" + (" or a smaller `batch_size`" if faces else ""),
+        share=2,
+    )
     rows = max(2, budget // row_bytes - 2 * halo)
     if mesh is not None:  # at least one band per device
         rows = min(rows, -(-(grid[0] - 1) // n_devices) + 1)
@@ -629,6 +770,20 @@ def caustic_triangles(
         rows, halo = grid[0], 0
     bands = -(-(grid[0] - 1) // (rows - 1))
     band_photons = (rows + 2 * halo) * grid[1]
+    check_photon_work(grid[0] * grid[1], bands, "photons")
+
+    def check_triangle(window: int) -> None:
+        check_fits(
+            triangle_bytes(window, reconstruction, supersample, dtype),
+            memory_limit,
+            f"one caustic triangle in a {window} x {window} pixel window"
+            + (f" ({supersample}^2 samples per pixel)" if reconstruction == "gouraud" else ""),
+            "pass a smaller `window`"
+            + (" or `supersample`" if reconstruction == "gouraud" else ""),
+            share=4,
+        )
+
+    check_triangle(1 if _is_auto(window) else window)  # "auto": at least one pixel
 
     if visibility == "distance_map":
         if not isinstance(scene, MeshScene):
@@ -661,7 +816,7 @@ def caustic_triangles(
         raise ValueError("window='auto' needs concrete scene values; under jit/vmap pass an int")
     ph, mean_area = None, None
     if not banded:
-        ph = trace_photons(scene, grid, hit_iterations, batch_size)
+        ph = _trace_photons(scene, grid, hit_iterations, batch_size)
         if window == "auto":
             window = triangle_window(ph, receiver)
     elif window == "auto" or reconstruction == "gouraud":
@@ -669,15 +824,16 @@ def caustic_triangles(
         if window == "auto":
             window = _window_from_histogram(histogram, 0.999)
         mean_area = area / (2 * (grid[0] - 1) * (grid[1] - 1))
+    check_triangle(window)  # "auto": now that the window is known
     if triangle_batch is None:
         per_triangle = triangle_bytes(window, reconstruction, supersample, dtype)
         triangle_batch = max(1, memory_limit // 4 // per_triangle)
-    triangle_batch = check_int(triangle_batch, "triangle_batch", 1)
     band_triangles = 2 * (rows + 2 * halo - 1) * (grid[1] - 1)
     triangle_batch = min(triangle_batch, band_triangles)
     # batches of even size: 295k triangles in two of 275k would pad a second, near-empty
     # one to full size (and twice the work)
     triangle_batch = -(-band_triangles // -(-band_triangles // triangle_batch))
+    check_photon_work(grid[0] * grid[1], bands * -(-band_triangles // triangle_batch), "photons")
     if not banded:
         images, missed = _triangles_image(
             ph, receiver.extent, receiver.shape, reconstruction, window, supersample, triangle_batch

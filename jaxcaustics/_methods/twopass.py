@@ -33,13 +33,22 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Float
 
+from .._checks import check_int
 from .._optics import fresnel_transmittance, refract, refract_components, tir_possible
+from .._raster import check_fits, check_memory_limit
 from .._scene import WaterScene
 from .._scene_checks import checks_scene_values
 from .._surface import ray_surface_hit
 
 # Largest automatic window (pixels on each side); beyond it the method is the wrong tool.
 MAX_AUTO_HALF_WINDOW = 32
+# Most Newton steps to the moving surface (it converges in a handful; a loop of a billion
+# steps ran on for hours)
+MAX_HIT_ITERATIONS = 100
+# memory model, numbers of the scene's dtype per pre-pass sample of the padded grid and
+# per gathered partial (XLA's compiled temporaries on CPU: 24-26 per sample for windows
+# up to 15 x 15, up to 87 for 63 x 63, which the partials term bounds)
+_SAMPLE_FLOATS = 32
 
 
 def _tent(u: Array) -> Array:
@@ -205,14 +214,65 @@ class TwoPassResult(eqx.Module):
     missed_flux_fraction: Array
 
 
+def _window_knob(value, name: str, odd: bool) -> int:
+    """`samples_x` (N: odd, >= 1) or `channels_y` (M: even, >= 0) as an int, or a
+    `ValueError` naming it."""
+    try:
+        good = check_int(value, name, 1 if odd else 0) % 2 == int(odd)
+    except ValueError:
+        good = False
+    if not good:
+        kind = "(N) must be an odd positive int" if odd else "(M) must be an even int >= 0"
+        raise ValueError(f"`{name}` {kind} or 'auto', got {value!r}")
+    return int(value)
+
+
+def _is_auto(value) -> bool:
+    return isinstance(value, str) and value == "auto"
+
+
 def _check_window(samples_x, channels_y) -> tuple[int, int]:
-    if not (isinstance(samples_x, int) and samples_x >= 1 and samples_x % 2 == 1):
-        raise ValueError(
-            f"`samples_x` (N) must be an odd positive int or 'auto', got {samples_x!r}"
-        )
-    if not (isinstance(channels_y, int) and channels_y >= 0 and channels_y % 2 == 0):
-        raise ValueError(f"`channels_y` (M) must be an even int >= 0 or 'auto', got {channels_y!r}")
-    return samples_x // 2, channels_y // 2
+    """The half widths ``(N // 2, M // 2)`` of a checked window."""
+    return (
+        _window_knob(samples_x, "samples_x", odd=True) // 2,
+        _window_knob(channels_y, "channels_y", odd=False) // 2,
+    )
+
+
+def _check_knobs(scene, hit_iterations, supersample, memory_limit) -> tuple[int, int, int]:
+    """The knobs `two_pass` and `auto_window` share, checked."""
+    if not isinstance(scene, WaterScene):
+        raise ValueError(f"`scene` must be a WaterScene, got {type(scene).__name__}")
+    return (
+        check_int(hit_iterations, "hit_iterations", 0, MAX_HIT_ITERATIONS),
+        check_int(supersample, "supersample", 1),
+        check_memory_limit(memory_limit),
+    )
+
+
+def two_pass_bytes(scene: WaterScene, samples_x: int, channels_y: int, supersample: int) -> int:
+    """Memory of a two-pass render, bytes (an estimate, made before compiling): per
+    channel and sub-pixel phase (``S^2``), `_SAMPLE_FLOATS` numbers per pre-pass sample
+    of the padded grid ``(rows + M) x (cols + N - 1)`` and the ``N + M + 1`` partial
+    sums per pixel row of the gather, plus the image. It grows with the receiver's
+    pixels, ``S^2`` and the window."""
+    rows, cols = scene.receiver.shape
+    channels = len(scene.iors)
+    n, m = samples_x, channels_y
+    per_phase = _SAMPLE_FLOATS * (rows + m) * (cols + n - 1) + (n + m + 1) * (rows + m) * cols
+    floats = channels * (supersample * supersample * per_phase + rows * cols)
+    return jnp.dtype(scene.surface.heights.dtype).itemsize * floats
+
+
+def _check_two_pass_memory(scene, samples_x, channels_y, supersample, memory_limit) -> None:
+    rows, cols = scene.receiver.shape
+    check_fits(
+        two_pass_bytes(scene, samples_x, channels_y, supersample),
+        memory_limit,
+        f"the two-pass render of {rows} x {cols} pixels ({len(scene.iors)} channel(s), "
+        f"samples_x={samples_x}, channels_y={channels_y}, supersample={supersample})",
+        "lower `supersample`, `samples_x` / `channels_y` or the receiver's pixels",
+    )
 
 
 @eqx.filter_jit
@@ -242,12 +302,22 @@ def _largest_shift(scene: WaterScene, iterations: int, supersample: int) -> tupl
 
 
 def auto_window(
-    scene: WaterScene, hit_iterations: int = 3, supersample: int = 1
+    scene: WaterScene,
+    hit_iterations: int = 3,
+    supersample: int = 1,
+    *,
+    memory_limit: int | None = None,
 ) -> tuple[int, int]:
     """``(N, M)`` just large enough for the scene's largest ray displacement.
 
     Traces the pre-pass once (needs concrete scene values: call it outside `jit`).
+    `hit_iterations`, `supersample` and `memory_limit` as in `two_pass` (the pre-pass
+    of the smallest window must fit in `memory_limit`).
     """
+    hit_iterations, supersample, memory_limit = _check_knobs(
+        scene, hit_iterations, supersample, memory_limit
+    )
+    _check_two_pass_memory(scene, 1, 0, supersample, memory_limit)
     if isinstance(scene.surface.heights, jax.core.Tracer):
         raise ValueError(
             "samples_x='auto' needs concrete scene values; under jit/vmap pass integers "
@@ -266,6 +336,7 @@ def two_pass(
     channels_y: int | Literal["auto"] = 6,
     hit_iterations: int = 3,
     supersample: int = 1,
+    memory_limit: int | None = None,
 ) -> TwoPassResult:
     """Caustics of `scene` by Yuksel & Keyser's two-pass gather.
 
@@ -283,27 +354,40 @@ def two_pass(
       gathered. 1 is the paper's method; 2 removes most of the faint pixel-grid ripple
       that one sample per pixel leaves where the light is stretched or squeezed, at
       about 4x the cost.
+    - `memory_limit`: bytes (default 1 GiB). The render's memory is estimated before
+      anything is compiled (`two_pass_bytes`: it grows with the receiver's pixels,
+      ``S^2`` and the window ``N x (M + 1)``); over the limit it raises a `ValueError`
+      with the estimate (with ``"auto"``, first for the smallest window, then for the
+      one chosen).
+
+    Knobs are checked before anything is compiled: ints are ints (no bools or floats),
+    `hit_iterations` in ``[0, 100]``; with ``"auto"`` for one of `samples_x` /
+    `channels_y` the other must be ``"auto"`` or a valid int (it is then replaced).
 
     **Returns:** a `TwoPassResult` with the irradiance image and the missed-flux
     fraction. Jit-compiled; differentiable with respect to every array of the scene
     (heights, extents, rest depth, light direction).
     """
-    if not isinstance(scene, WaterScene):
-        raise ValueError(f"`scene` must be a WaterScene, got {type(scene).__name__}")
-    if not (isinstance(hit_iterations, int) and hit_iterations >= 0):
-        raise ValueError(f"`hit_iterations` must be an int >= 0, got {hit_iterations!r}")
-    if not (isinstance(supersample, int) and supersample >= 1):
-        raise ValueError(f"`supersample` must be an int >= 1, got {supersample!r}")
-    auto = samples_x == "auto" or channels_y == "auto"
+    hit_iterations, supersample, memory_limit = _check_knobs(
+        scene, hit_iterations, supersample, memory_limit
+    )
+    # "auto" for one of the pair: the other is checked all the same (then replaced)
+    _check_window(
+        1 if _is_auto(samples_x) else samples_x, 0 if _is_auto(channels_y) else channels_y
+    )
+    auto = _is_auto(samples_x) or _is_auto(channels_y)
     if auto:
-        samples_x, channels_y = auto_window(scene, hit_iterations, supersample)
+        samples_x, channels_y = auto_window(
+            scene, hit_iterations, supersample, memory_limit=memory_limit
+        )
     half_x, half_y = _check_window(samples_x, channels_y)
     rows, cols = scene.receiver.shape
     # an explicit window: `samples_x=100001` once compiled for minutes
     if not auto and (half_x > cols or half_y > rows):
         raise ValueError(
-            f"the window (samples_x={samples_x}, channels_y={channels_y}) reaches past the "
-            f"receiver's {rows} x {cols} pixels: samples_x <= {2 * cols + 1} and "
+            f"the window (`samples_x` {samples_x}, `channels_y` {channels_y}) reaches past "
+            f"the receiver's {rows} x {cols} pixels: samples_x <= {2 * cols + 1} and "
             f"channels_y <= {2 * rows} already reach every pixel"
         )
+    _check_two_pass_memory(scene, samples_x, channels_y, supersample, memory_limit)
     return _two_pass(scene, half_x, half_y, hit_iterations, supersample)

@@ -36,8 +36,8 @@ from ._lens import (
     _refract_rays,
     _rng,
 )
-from ._mesh import _ACTIVE, BLOCKED, DROPPED, MISSED, UPWARD, _Emitter
-from ._optics import chunk_photons
+from ._mesh import _ACTIVE, BLOCKED, DROPPED, MISSED, UPWARD, _Emitter, _rays
+from ._optics import _check_bool, chunk_photons
 
 # Photons traced per vectorised batch: bounds the memory in use.
 _CHUNK = 1 << 16
@@ -298,15 +298,7 @@ def trace_ellipsoid_rays(
         inside after ``scene.interfaces`` events).
     """
     es = _read_scene(scene, need_receiver=False)
-    o = np.asarray(origins, dtype=np.float64).reshape(-1, 3)
-    d = np.asarray(directions, dtype=np.float64).reshape(-1, 3)
-    if o.shape != d.shape:
-        raise ValueError(f"`origins` and `directions` must both be (N, 3), got {o.shape} {d.shape}")
-    norm = np.linalg.norm(d, axis=1, keepdims=True)
-    if not np.all(norm > 0.0) or not np.all(np.isfinite(o)) or not np.all(np.isfinite(d)):
-        raise ValueError("`origins` and `directions` must be finite, directions non-zero")
-    o, d = o.T.copy(), (d / norm).T.copy()
-    w = np.ones(o.shape[1])
+    o, d, w = _rays(origins, directions, 1.0)
     fates = [_trace_channel(es, o, d, w, ior, land=False) for ior in es.iors]
     status = np.stack([f.status for f in fates])
     names = np.full(status.shape, "dropped", dtype="<U7")
@@ -396,6 +388,7 @@ def trace_ellipsoid(
     rows, cols = _grid_shape(photons_per_axis)
     chunk = chunk_photons(memory_limit, _CHUNK)
     rng = _rng(jitter, seed)
+    return_stats = _check_bool(return_stats, "return_stats")
     emitter = _emitter(es)
     rec = es.receiver
     c = len(es.iors)

@@ -23,7 +23,16 @@ import numbers
 
 import numpy as np
 
-from ._optics import chunk_photons
+from ._optics import (
+    MAX_EMITTED,
+    MAX_PHOTONS,
+    _check_bool,
+    _check_count,
+    _check_int,
+    _check_points,
+    _rng,
+    chunk_photons,
+)
 from ._surface import _EPS, _GRAZE, _Surface, intersect_surface
 
 # Photons traced per vectorised batch: bounds the memory in use.
@@ -40,27 +49,23 @@ TIR_BOTTOM = 4  # lens: total internal reflection at the flat bottom face
 # --------------------------------------------------------------------------- shared parts
 
 
-def _check_int(value, name: str, minimum: int = 1) -> int:
-    if isinstance(value, bool) or not isinstance(value, numbers.Integral):
-        raise ValueError(f"`{name}` must be an integer, got {value!r}")
-    if value < minimum:
-        raise ValueError(f"`{name}` must be >= {minimum}, got {value}")
-    return int(value)
-
-
-def _grid_shape(photons_per_axis) -> tuple[int, int]:
-    """``n`` -> ``(n, n)``; ``(rows, cols)`` -> itself (integers >= 1)."""
+def _grid_shape(photons_per_axis, limit: int = MAX_PHOTONS) -> tuple[int, int]:
+    """``n`` -> ``(n, n)``; ``(rows, cols)`` -> itself (integers >= 1, at most `limit`
+    photons in all)."""
     if isinstance(photons_per_axis, numbers.Integral) and not isinstance(photons_per_axis, bool):
         n = _check_int(photons_per_axis, "photons_per_axis")
-        return n, n
-    try:
-        rows, cols = photons_per_axis
-    except (TypeError, ValueError) as err:
-        raise ValueError(
-            f"`photons_per_axis` must be an integer or a pair (rows, cols), got "
-            f"{photons_per_axis!r}"
-        ) from err
-    return _check_int(rows, "photons_per_axis[0]"), _check_int(cols, "photons_per_axis[1]")
+        shape = n, n
+    else:
+        try:
+            rows, cols = photons_per_axis
+        except (TypeError, ValueError) as err:
+            raise ValueError(
+                f"`photons_per_axis` must be an integer or a pair (rows, cols), got "
+                f"{photons_per_axis!r}"
+            ) from err
+        shape = _check_int(rows, "photons_per_axis[0]"), _check_int(cols, "photons_per_axis[1]")
+    _check_count(shape[0] * shape[1], limit, f"`photons_per_axis` {photons_per_axis!r}")
+    return shape
 
 
 def _cells(
@@ -455,10 +460,7 @@ def trace_lens_photons(scene, xs, ys) -> tuple[np.ndarray, np.ndarray, np.ndarra
         the glass does not go down to the bottom face.
     """
     lens = _read_lens(scene)
-    x = np.asarray(xs, dtype=np.float64).ravel()
-    y = np.asarray(ys, dtype=np.float64).ravel()
-    if x.shape != y.shape:
-        raise ValueError(f"`xs` and `ys` must have the same size, got {x.size} and {y.size}")
+    x, y = _check_points(xs, ys)
     gx, gy, weight, status = _trace_lens(lens, x, y)
     return np.stack([gx, gy], axis=-1), weight, status == LANDED
 
@@ -481,13 +483,9 @@ def emit_lens_photons(
         The rest-plane area of one cell, m^2.
     """
     lens = _read_lens(scene)
-    rows, cols = _grid_shape(photons_per_axis)
+    rows, cols = _grid_shape(photons_per_axis, MAX_EMITTED)
     xs, ys, area = _emit_lens(lens, rows, cols, 0, rows * cols, _rng(jitter, seed))
     return xs, ys, area
-
-
-def _rng(jitter: bool, seed) -> np.random.Generator | None:
-    return np.random.default_rng(seed) if jitter else None
 
 
 def _emit_lens(
@@ -552,6 +550,7 @@ def trace_lens(
     chunk = chunk_photons(memory_limit, _CHUNK)
     rows, cols = _grid_shape(photons_per_axis)
     rng = _rng(jitter, seed)
+    return_stats = _check_bool(return_stats, "return_stats")
     rec = lens.receiver
     c = len(lens.iors)
     flux = np.zeros((c, rec.shape[0] * rec.shape[1]))

@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import numbers
 
 import numpy as np
 
@@ -35,7 +36,7 @@ from ._lens import (
     _refract_rays,
     _rng,
 )
-from ._optics import chunk_photons
+from ._optics import MAX_EMITTED, _check_bool, _real, chunk_photons
 
 # Photons traced per vectorised batch (emission), and rays per BVH traversal batch.
 _CHUNK = 1 << 16
@@ -262,10 +263,12 @@ def intersect_mesh(
         through a shared edge or vertex reports one of the faces there.
     """
     v, f = _mesh_arrays(vertices, faces, "mesh")
-    o = np.asarray(origins, dtype=np.float64).reshape(-1, 3).T
-    d = np.asarray(directions, dtype=np.float64).reshape(-1, 3).T
+    o, d = (_real(a, name) for a, name in ((origins, "origins"), (directions, "directions")))
+    o, d = o.reshape(-1, 3).T, d.reshape(-1, 3).T
     if o.shape != d.shape:
         raise ValueError("`origins` and `directions` must have the same shape (N, 3)")
+    if not (isinstance(t_min, numbers.Real) and not isinstance(t_min, bool) and np.isfinite(t_min)):
+        raise ValueError(f"`t_min` must be a finite number, got {t_min!r}")
     t, face, u, w = _Tris.build(v, f).nearest(o, d, float(t_min))
     hit = face >= 0
     bary = np.where(hit[:, None], np.stack([1.0 - u - w, u, w], axis=1), 0.0)
@@ -482,11 +485,14 @@ def _trace_mesh(ms: _MeshScene, o: np.ndarray, d: np.ndarray, w: np.ndarray) -> 
 
 
 def _rays(origins, directions, weights) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    o = np.asarray(origins, dtype=np.float64).reshape(-1, 3)
-    d = np.asarray(directions, dtype=np.float64).reshape(-1, 3)
-    w = np.broadcast_to(np.asarray(weights, dtype=np.float64), o.shape[:1]).copy()
+    o = _real(origins, "origins").reshape(-1, 3)
+    d = _real(directions, "directions").reshape(-1, 3)
     if o.shape != d.shape:
         raise ValueError(f"`origins` and `directions` must both be (N, 3), got {o.shape} {d.shape}")
+    try:
+        w = np.broadcast_to(_real(weights, "weights"), o.shape[:1]).copy()
+    except ValueError as err:
+        raise ValueError(f"`weights` must be one number or one per ray: {err}") from err
     norm = np.linalg.norm(d, axis=1, keepdims=True)
     if not np.all(norm > 0.0) or not np.all(np.isfinite(o)) or not np.all(np.isfinite(d)):
         raise ValueError("`origins` and `directions` must be finite, directions non-zero")
@@ -626,7 +632,7 @@ def emit_mesh_photons(
     grid.
     """
     ms = _read_mesh_scene(scene)
-    rows, cols = _grid_shape(photons_per_axis)
+    rows, cols = _grid_shape(photons_per_axis, MAX_EMITTED)
     o, d, w = _emitter(ms).photons(rows, cols, 0, rows * cols, _rng(jitter, seed))
     return o.T.copy(), d.T.copy(), w
 
@@ -688,6 +694,7 @@ def trace_mesh(
     chunk = chunk_photons(memory_limit, _CHUNK)
     rows, cols = _grid_shape(photons_per_axis)
     rng = _rng(jitter, seed)
+    return_stats = _check_bool(return_stats, "return_stats")
     emitter = _emitter(ms)
     rec = ms.receiver
     c = len(ms.iors)

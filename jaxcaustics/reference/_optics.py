@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import numbers
+
 import numpy as np
 
 
@@ -57,6 +59,72 @@ def refract(
     return tx, ty, tz, transmittance, ok
 
 
+# --------------------------------------------------------------------------- checks
+# The reference imports nothing of the library (not `jaxcaustics._checks`): its own small
+# checks, worded as the library's.
+
+# most photons of one trace (traced in chunks: some 7e10, hours to days), and most
+# photons an emitter returns at once (float64 arrays of 2^26 photons: 1.5 to 3.5 GB)
+MAX_PHOTONS = 1 << 36
+MAX_EMITTED = 1 << 26
+
+
+def _check_int(value, name: str, minimum: int = 1) -> int:
+    """`value` as an int (bools and floats refused) ``>= minimum``, else a `ValueError`
+    (worded as `jaxcaustics._checks.check_int`)."""
+    whole = isinstance(value, numbers.Integral) and not isinstance(value, (bool, np.bool_))
+    if not whole or value < minimum:
+        raise ValueError(f"`{name}` must be an int >= {minimum}, got {value!r}")
+    return int(value)
+
+
+def _check_bool(value, name: str) -> bool:
+    """`value` if it is ``True`` or ``False`` (Python or NumPy), else a `ValueError`."""
+    if not isinstance(value, (bool, np.bool_)):
+        raise ValueError(f"`{name}` must be True or False, got {value!r}")
+    return bool(value)
+
+
+def _rng(jitter, seed) -> np.random.Generator | None:
+    """The jitter's generator (None without jitter); `jitter` and `seed` checked."""
+    if not _check_bool(jitter, "jitter"):
+        return None
+    try:
+        return np.random.default_rng(seed)
+    except (TypeError, ValueError) as err:
+        raise ValueError(f"`seed` must be a non-negative int, got {seed!r}") from err
+
+
+def _check_count(count: int, limit: int, what: str) -> None:
+    """Refuse `count` photons over `limit` (`what` names the knob)."""
+    if count > limit:
+        raise ValueError(f"{what} gives {count} photons, over the limit {limit}")
+
+
+def _real(value, name: str) -> np.ndarray:
+    """`value` as a float64 array of finite real numbers, else a `ValueError` naming it
+    (strings, bools, complex numbers, NaN and infinities are refused)."""
+    try:
+        a = np.asarray(value)
+    except (TypeError, ValueError) as err:  # ragged sequences
+        what = type(value).__name__
+        raise ValueError(f"`{name}` must be finite real numbers, got {what}") from err
+    if a.dtype.kind not in "iuf" or not np.all(np.isfinite(a)):
+        raise ValueError(f"`{name}` must be finite real numbers")
+    return a.astype(np.float64)
+
+
+def _check_points(xs, ys) -> tuple[np.ndarray, np.ndarray]:
+    """`xs`, `ys` as flat float64 arrays of one size: finite real numbers, else a
+    `ValueError` naming them."""
+    out = [_real(xs, "xs").ravel(), _real(ys, "ys").ravel()]
+    if out[0].shape != out[1].shape:
+        raise ValueError(
+            f"`xs` and `ys` must have the same size, got {out[0].size} and {out[1].size}"
+        )
+    return out[0], out[1]
+
+
 # memory of one photon in a chunk of the reference tracers: its arrays and the tracers'
 # NumPy temporaries, bytes (an estimate: about 128 float64 numbers)
 PHOTON_BYTES = 1024
@@ -66,6 +134,7 @@ def chunk_photons(memory_limit, default: int) -> int:
     """Photons traced at a time under `memory_limit` bytes (`PHOTON_BYTES` each);
     ``None``: the tracer's `default`. Raises a `ValueError` naming `memory_limit` unless
     it is ``None`` or an int ``>= 1``."""
+    _check_int(default, "default")
     if memory_limit is None:
         return default
     if isinstance(memory_limit, bool) or not isinstance(memory_limit, (int, np.integer)):

@@ -6,6 +6,8 @@ import dataclasses
 
 import numpy as np
 
+from ._optics import _real
+
 BOUNDARY_MODES = ("periodic", "clamp", "extrapolate")
 
 # Bound on the Catmull-Rom interpolant over t in [0, 1]: the negative weights
@@ -141,16 +143,20 @@ class _Surface:
 
     @classmethod
     def build(cls, heights, extent, boundary, rotation=0.0) -> _Surface:
-        h = np.ascontiguousarray(np.asarray(heights, dtype=np.float64))
+        h = np.asarray(heights)
+        if h.dtype.kind not in "iuf":
+            raise ValueError(f"`heights` must be real numbers, got dtype {h.dtype}")
+        h = np.ascontiguousarray(h, dtype=np.float64)
         if h.ndim != 2 or h.shape[0] < 2 or h.shape[1] < 2:
             raise ValueError(f"`heights` must be 2-D with at least 2x2 samples, got {h.shape}")
         if not np.all(np.isfinite(h)):
             raise ValueError("`heights` contains NaN or infinite values")
-        ext = np.asarray(extent, dtype=np.float64)
-        if ext.shape != (4,) or not np.all(np.isfinite(ext)):
+        ext = np.asarray(extent)
+        if ext.dtype.kind not in "iuf" or ext.shape != (4,) or not np.all(np.isfinite(ext)):
             raise ValueError(
                 f"`extent` must be 4 finite numbers (x_min, x_max, y_min, y_max), got {ext!r}"
             )
+        ext = ext.astype(np.float64)
         if not (ext[1] > ext[0] and ext[3] > ext[2]):
             raise ValueError(f"`extent` must have x_max > x_min and y_max > y_min, got {ext}")
         if boundary not in BOUNDARY_MODES:
@@ -277,7 +283,12 @@ def surface_height(
         the world axes.
     """
     surf = _Surface.build(heights, extent, boundary, rotation)
-    xb, yb = np.broadcast_arrays(np.asarray(x, dtype=np.float64), np.asarray(y, dtype=np.float64))
+    try:
+        xb, yb = np.broadcast_arrays(_real(x, "x"), _real(y, "y"))
+    except ValueError as err:
+        if "`" in str(err):
+            raise
+        raise ValueError(f"`x` and `y` must broadcast together: {err}") from err
     shape = xb.shape
     h, hx, hy = surf.evaluate(xb.ravel(), yb.ravel())
     assert hx is not None and hy is not None

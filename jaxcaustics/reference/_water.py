@@ -4,13 +4,20 @@ from __future__ import annotations
 
 import dataclasses
 import math
-import numbers
 import warnings
 from collections.abc import Callable, Sequence
 
 import numpy as np
 
-from ._optics import chunk_photons, refract
+from ._optics import (
+    MAX_PHOTONS,
+    _check_count,
+    _check_int,
+    _check_points,
+    _rng,
+    chunk_photons,
+    refract,
+)
 from ._surface import _Surface, intersect_surface
 
 # Photons (or triangles' samples) handled per vectorised batch: bounds the memory in use.
@@ -97,17 +104,11 @@ def _read_scene(scene) -> _Water:
     )
 
 
-def _check_int(value, name: str, minimum: int = 1) -> int:
-    if isinstance(value, bool) or not isinstance(value, numbers.Integral):
-        raise ValueError(f"`{name}` must be an integer, got {value!r}")
-    if value < minimum:
-        raise ValueError(f"`{name}` must be >= {minimum}, got {value}")
-    return int(value)
-
-
 def _check_margin(margin) -> float | None:
     if margin is None:
         return None
+    if isinstance(margin, (str, bytes, bool, np.bool_)):
+        raise ValueError(f"`margin` must be None or a number (metres), got {margin!r}")
     try:
         m = float(margin)
     except (TypeError, ValueError) as err:
@@ -171,10 +172,7 @@ def trace_photons(scene, xs, ys) -> tuple[np.ndarray, np.ndarray, np.ndarray, np
         ground.
     """
     w = _read_scene(scene)
-    x = np.asarray(xs, dtype=np.float64).ravel()
-    y = np.asarray(ys, dtype=np.float64).ravel()
-    if x.shape != y.shape:
-        raise ValueError(f"`xs` and `ys` must have the same size, got {x.size} and {y.size}")
+    x, y = _check_points(xs, ys)
     return _trace(w, x, y, w.iors)
 
 
@@ -300,6 +298,15 @@ def _bin(
 _Estimator = Callable[[_Layout, Sequence[float]], tuple[np.ndarray, float]]
 
 
+def _check_work(w: _Water, per_axis: int, margin: float | None, per_cell: int, what: str):
+    """Refuse an emission lattice (the padding of `margin`, or of the largest automatic
+    margin) whose cells times `per_cell` exceed `MAX_PHOTONS`, before any tracing."""
+    e = w.receiver_extent
+    m = margin if margin is not None else _MAX_AUTO_MARGIN * max(e[1] - e[0], e[3] - e[2])
+    lay = _layout(w, (0.0, 0.0), per_axis, m, _whole_periods(w))
+    _check_count(lay.nx * lay.ny * per_cell, MAX_PHOTONS, what)
+
+
 def _render(w: _Water, per_axis: int, margin: float | None, estimate: _Estimator) -> np.ndarray:
     """Run an estimator on each group of channels sharing an emission lattice; normalise."""
     rows, cols = w.receiver_shape
@@ -392,10 +399,12 @@ def trace_water(
     per_axis = _check_int(photons_per_axis, "photons_per_axis")
     margin = _check_margin(margin)
     chunk = chunk_photons(memory_limit, _CHUNK)
+    _rng(jitter, seed)  # checked
+    _check_work(w, per_axis, margin, 1, "`photons_per_axis` (and `margin`)")
     rows, cols = w.receiver_shape
 
     def estimate(lay: _Layout, iors: Sequence[float]) -> tuple[np.ndarray, float]:
-        rng = np.random.default_rng(seed) if jitter else None
+        rng = _rng(jitter, seed)
         flux = np.zeros((len(iors), rows * cols))
         ring_flux = 0.0
         block = max(1, chunk // lay.nx)
@@ -485,6 +494,7 @@ def area_ratio_water(
     if math.isqrt(samples) ** 2 != samples:
         raise ValueError(f"`samples_per_triangle` must be a perfect square, got {samples}")
     margin = _check_margin(margin)
+    _check_work(w, per_axis, margin, 2 * samples, "`vertices_per_axis` x `samples_per_triangle`")
     bary = _stratified_barycentric(samples)
     rows, cols = w.receiver_shape
 
