@@ -156,3 +156,11 @@ def check_array(value, name: str, shape: tuple | None = None, *, finite: bool = 
     if arr.dtype.kind != "f":
         arr = arr.astype(jnp.result_type(float))
     return jnp.asarray(arr)
+
+
+def check_broadcast(a, name_a: str, b, name_b: str) -> None:
+    """A `ValueError` naming `name_b` unless the shapes of `a` and `b` broadcast."""
+    try:
+        np.broadcast_shapes(a.shape, b.shape)
+    except ValueError as err:
+        raise ValueError(f"`{name_b}` {b.shape} must broadcast with `{name_a}` {a.shape}") from err

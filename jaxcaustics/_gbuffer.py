@@ -26,7 +26,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Bool, Float
 
-from ._checks import check_array, check_int
+from ._checks import check_array, check_broadcast, check_int
 from ._intersect import face_normals, hit_on_triangle, moller_trumbore, vertex_normals
 from ._light_view import LightView
 from ._mesh import MeshScene
@@ -241,12 +241,7 @@ def ray_geo(
     positions = check_array(positions, "positions", (None, None, 3))
     origin = check_array(origin, "origin", (..., 3))
     direction = check_array(direction, "direction", (..., 3))
-    try:
-        np.broadcast_shapes(origin.shape, direction.shape)
-    except ValueError as err:
-        raise ValueError(
-            f"`direction` {direction.shape} must broadcast with `origin` {origin.shape}"
-        ) from err
+    check_broadcast(origin, "origin", direction, "direction")
     iterations = check_int(iterations, "iterations", 0, MAX_ITERATIONS)
     dist = _length(_sample(view, positions, origin) - origin)
     for _ in range(iterations):

@@ -17,7 +17,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Bool, Float
 
-from ._checks import check_array, check_number
+from ._checks import check_array, check_broadcast, check_number
 
 
 def _dot(a: Array, b: Array) -> Array:
@@ -29,12 +29,7 @@ def _check_vectors(direction, normal) -> tuple[Array, Array]:
     (unless traced); else a `ValueError` naming the argument."""
     direction = check_array(direction, "direction", (..., 3))
     normal = check_array(normal, "normal", (..., 3))
-    try:
-        np.broadcast_shapes(direction.shape, normal.shape)
-    except ValueError as err:
-        raise ValueError(
-            f"`normal` {normal.shape} must broadcast with `direction` {direction.shape}"
-        ) from err
+    check_broadcast(direction, "direction", normal, "normal")
     return direction, normal
 
 

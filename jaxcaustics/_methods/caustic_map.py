@@ -171,7 +171,9 @@ def _check_memory(scene, photons: int, map_resolution, gbuffer_resolution, per_p
     )
 
 
-def _view_and_buffers(scene, gbuffer_resolution: int, memory_limit: int) -> GeometryBuffers:
+def _view_and_buffers(
+    scene, gbuffer_resolution: int, memory_limit: int | None = None
+) -> GeometryBuffers:
     view = light_view(scene)
     if not isinstance(view.window, jax.core.Tracer):
         if not np.all(np.isfinite(np.asarray(view.window))):
