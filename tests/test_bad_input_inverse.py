@@ -530,3 +530,17 @@ def test_cli_names_flags_in_library_errors():
 
     with pytest.raises(ValueError, match="lower `--levels` \\(or `--levels`\\)"):
         with_flags(run, {"levels": "--levels", "heights_shape": "--levels"})(None)
+
+
+@pytest.mark.parametrize("solve", ["design", "recover"])
+def test_runaway_conjugate_gradient_steps_are_refused(solve):
+    """`cg_steps=10**9` ran (each linear solve would have taken that many steps)."""
+    target = np.ones((16, 16))
+    with pytest.raises(ValueError, match="`cg_steps`"):
+        if solve == "design":
+            jc.design_lens(target, width=0.05, height=0.05, thickness=0.01, throw=0.5,
+                           cg_steps=10**9)  # fmt: skip
+        else:
+            light = jc.DirectionalLight([0.0, 0.0, -1.0])
+            jc.recover_surface(target, extent=(0, 1, 0, 1), rest_depth=0.5, light=light,
+                               cg_steps=10**9)  # fmt: skip

@@ -86,8 +86,8 @@ from .._surface import (
 from .._surface import bilinear as _bilinear
 from .._transport import MAX_ITERATIONS, MAX_PIXELS
 from .._transport import neumann_poisson as _neumann_poisson
+from .recover import MAX_CG_STEPS, check_irradiance, resample_heights
 from .recover import _laplacian as _five_point
-from .recover import check_irradiance, resample_heights
 from .water_start import safe_log_area as _safe_log_area
 
 SOLVERS = ("levenberg_marquardt", "gauss_newton", "lbfgs")
@@ -1476,7 +1476,7 @@ def _prepare(
     levels = [check_int(n, "levels", 4) for n in levels]
     max_steps = check_int(max_steps, "max_steps", 1)
     oversample = check_int(oversample, "oversample", 1)
-    cg_steps = check_int(cg_steps, "cg_steps", 1)
+    cg_steps = check_int(cg_steps, "cg_steps", 1, MAX_CG_STEPS)
     for name, value in (
         ("regularization", regularization),
         ("start_scale", start_scale),

@@ -194,6 +194,11 @@ class RecoveryResult:
 # ------------------------------------------------------------------ the problem
 
 
+# conjugate-gradient steps per linear solve: far beyond what any solve here needs (a few
+# hundred at most); a larger request is runaway work, refused before anything runs
+MAX_CG_STEPS = 10_000
+
+
 def _laplacian(u: Array, boundary: str, wx: Array, wy: Array) -> Array:
     if boundary == "periodic":
         east, west = jnp.roll(u, -1, 1), jnp.roll(u, 1, 1)
@@ -546,7 +551,7 @@ def recover_surface(
     max_steps = check_int(max_steps, "max_steps", 1)
     rtol = check_number(rtol, "rtol", low=0.0)
     atol = check_number(atol, "atol", low=0.0)
-    cg_steps = check_int(cg_steps, "cg_steps", 1)
+    cg_steps = check_int(cg_steps, "cg_steps", 1, MAX_CG_STEPS)
     hit_iterations = check_int(hit_iterations, "hit_iterations", 0)
     supersample = check_int(supersample, "supersample", 1)
     blur = check_number(blur, "blur", low=0.0)
