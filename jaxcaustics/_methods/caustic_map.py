@@ -55,6 +55,7 @@ from .._gbuffer import (
 from .._light_view import LightView, light_view
 from .._mesh import MeshScene
 from .._raster import (
+    DEFAULT_MEMORY_LIMIT,
     check_fits,
     check_memory_limit,
     check_photon_work,
@@ -150,15 +151,17 @@ def _check_sigma(sigma, map_resolution: int, photons: int) -> float:
 
 def _check_memory(scene, photons: int, map_resolution, gbuffer_resolution, per_photon, limit):
     """What does not grow with the photons (the geometry buffers, the caustic map and
-    the receiver's lookups) and one photon (or cluster of `photons`) must fit in the
-    limit; refused, with the estimate, before anything is compiled."""
+    the receiver's lookups) and one photon (or cluster of `photons`) must fit; refused,
+    with the estimate, before anything is compiled. `limit` bounds the photon batches
+    (its documented meaning: a small one means more batches); the fixed buffers, which
+    batching cannot shrink, are held to the larger of it and the 1 GiB default."""
     channels, size = len(scene.iors), jnp.dtype(scene.generator.vertices.dtype).itemsize
     fixed = size * (
         _GBUFFER_FLOATS * gbuffer_resolution**2 + _MAP_FLOATS * channels * map_resolution**2
     )
     check_fits(
         fixed,
-        limit,
+        max(limit, DEFAULT_MEMORY_LIMIT),
         f"the {gbuffer_resolution}^2 geometry buffers and the {map_resolution}^2 caustic map",
         "lower `gbuffer_resolution` or `map_resolution`",
     )
@@ -174,6 +177,9 @@ def _check_memory(scene, photons: int, map_resolution, gbuffer_resolution, per_p
 def _view_and_buffers(
     scene, gbuffer_resolution: int, memory_limit: int | None = None
 ) -> GeometryBuffers:
+    """The light's view and its geometry buffers; `memory_limit` is the photon batches'
+    budget, so the buffers (which batching cannot shrink) get at least the default."""
+    memory_limit = max(memory_limit or 0, DEFAULT_MEMORY_LIMIT)
     view = light_view(scene)
     if not isinstance(view.window, jax.core.Tracer):
         if not np.all(np.isfinite(np.asarray(view.window))):
