@@ -57,7 +57,7 @@ def timed(label, render):
     jax.block_until_ready(result.image)
     seconds = time.perf_counter() - start
     line = f"{label:34s} error {error(result.image):.3f}  {seconds * 1000:7.0f} ms"
-    if hasattr(result, "stats"):
+    if "generated" in getattr(result, "stats", {}):  # the caustic maps count their photons
         line += f", photons generated {result.stats['generated']}"
         line += f", splatted {result.stats['splatted']}"
     print(line)
