@@ -22,7 +22,7 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Bool, Float
 
-from ._intersect import face_normals, hit_on_triangle, nearest_hits, vertex_normals
+from ._intersect import face_normals, hit_on_triangle, nearest_hits, search_tree, vertex_normals
 from ._light_view import orthonormal_basis
 from ._mesh import MeshScene
 from ._optics import fresnel_transmittance, reflect, refract_components
@@ -233,7 +233,8 @@ def mesh_photons(
     rounded up; see `_emission_frame`) on the plane through the generator's bounding-box
     centre, perpendicular to the light (a point light's axis points at that centre). Each photon
     follows up to ``scene.interfaces`` interface events (see `MeshScene`); which triangle
-    it meets is found by brute force over the triangles (`nearest_hits`, no derivative),
+    it meets is found among the triangles (`nearest_hits`: brute force for a few, a
+    bounding volume hierarchy for more; no derivative),
     and the hit is recomputed from that triangle's vertices so the result is
     differentiable with respect to them.
 
@@ -299,6 +300,9 @@ def trace_mesh_rays(
         if scene.occluders
         else None
     )
+    # one search tree each (None for a few triangles), built once for every search
+    tree = search_tree(triangles)
+    occluder_tree = None if occluders is None else search_tree(occluders)
     # rays restart on the triangle they hit (excluded from their next search); `eps`
     # only guards against re-hitting a neighbour through a shared edge by rounding
     eps = 16 * jnp.finfo(dtype).eps * radius
@@ -306,14 +310,14 @@ def trace_mesh_rays(
     def blocked(o, d, t_limit):
         if occluders is None:
             return jnp.zeros(o.shape[:1], bool)
-        t_occ, _ = nearest_hits(o, d, occluders, eps, batch_size)
+        t_occ, _ = nearest_hits(o, d, occluders, eps, batch_size, tree=occluder_tree)
         return t_occ < t_limit
 
     def interface(ior, event, carry):
         """One interface: the ray meets the generator (refracted or reflected there),
         or leaves it for good."""
         o, d, alive, inside, left, flux, last = carry
-        t_near, face = nearest_hits(o, d, triangles, eps, batch_size, last)
+        t_near, face = nearest_hits(o, d, triangles, eps, batch_size, last, tree)
         hit = jnp.isfinite(t_near) & ~left
         alive = alive & ~(blocked(o, d, t_near) & hit)  # an occluder before the next hit
         alive = jnp.where(event == 0, alive & hit, alive)  # only light through the generator
@@ -355,7 +359,7 @@ def trace_mesh_rays(
             carry = jax.lax.fori_loop(0, scene.interfaces, step, carry)
         o, d, alive, inside, left, flux, last = carry
         # the path needs more interfaces than allowed if it meets the generator again
-        t_near, _ = nearest_hits(o, d, triangles, eps, batch_size, last)
+        t_near, _ = nearest_hits(o, d, triangles, eps, batch_size, last, tree)
         hit = jnp.isfinite(t_near) & ~left
         alive = alive & ~hit
         alive = alive & ~inside

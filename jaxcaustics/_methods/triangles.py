@@ -35,6 +35,7 @@ import numpy as np
 from jaxtyping import Array, Bool, Float
 
 from .._checks import check_bool, check_choice, check_int, check_number
+from .._intersect import search_bytes
 from .._mesh import MeshScene
 from .._photons import Photons, lens_photons, mesh_photons
 from .._raster import (
@@ -524,7 +525,6 @@ def _distance_map_caustics(scene: MeshScene, grid, batch_size, options: CubeMapO
 # (about 1.2 to 1.5 times XLA's compiled temporaries on CPU; tests/test_memory.py checks
 # the bound)
 _BAND_FLOATS = 64  # per photon and channel: photon, its two triangles, tracing temporaries
-_RAY_SEARCH_FLOATS = 16  # per ray and generator face in the mesh triangle search
 
 
 def triangle_bytes(
@@ -545,10 +545,11 @@ def triangle_bytes(
 def band_bytes(photons: int, channels: int, dtype=jnp.float64, faces: int = 0, ray_batch: int = 0):
     """Memory of a band of `photons` photons (per channel: the photon, its two caustic
     triangles and the tracing temporaries, `_BAND_FLOATS` numbers) and, for a mesh scene
-    of `faces` generator faces, of one batch of `ray_batch` rays in the triangle search,
-    bytes."""
+    of `faces` generator faces, of one batch of `ray_batch` rays in the triangle search
+    (`search_bytes`), bytes."""
     size = jnp.dtype(dtype).itemsize
-    return size * (photons * channels * _BAND_FLOATS + ray_batch * faces * _RAY_SEARCH_FLOATS)
+    search = search_bytes(ray_batch, faces, dtype) if faces else 0
+    return size * photons * channels * _BAND_FLOATS + search
 
 
 class _BandConfig(eqx.Module):
@@ -743,8 +744,9 @@ def caustic_triangles(
         "use fewer receiver pixels",
     )
     if batch_size is None:
-        per_ray = band_bytes(0, 0, dtype, faces, 1) if faces else 1
-        batch_size = max(1, min(4096, memory_limit // 4 // per_ray))
+        fixed = search_bytes(0, faces, dtype) if faces else 0
+        per_ray = search_bytes(1, faces, dtype) - fixed if faces else 1
+        batch_size = max(1, min(4096, (memory_limit // 4 - fixed) // per_ray))
     ray_batch = batch_size if faces else 0
     mesh = None if devices is None else device_mesh(devices)
     n_devices = 1 if mesh is None else mesh.size
