@@ -4,8 +4,11 @@ from __future__ import annotations
 
 import inspect
 import logging
+import warnings
 from typing import Any
 
+import jax
+import numpy as np
 from jaxtyping import Array
 
 from ._checks import check_bool, check_choice, check_number
@@ -32,6 +35,35 @@ DEFAULT_METHOD = {
     "MeshScene": "triangles",
     "EllipsoidScene": "spot_lights",
 }
+
+
+MISSED_FLUX_WARNING = 0.01
+"""`render` warns when a method leaves out more than this fraction of the light."""
+
+# the methods whose missed flux is light their model leaves out (not light that lands
+# off the receiver: caustic triangles and caustic maps count that too, and a scene may
+# well light more than its receiver), and what to change
+_MISSED_ADVICE = {
+    "twopass": "it lands beyond the window of samples_x x (channels_y + 1) pixels around "
+    "its illumination centre; pass samples_x='auto', channels_y='auto' (the window sized "
+    "from the largest ray displacement) or a wider window",
+    "spot_lights": "the fitted spot lights do not carry it; pass a larger `max_lights` or "
+    "`rays_per_axis`",
+}
+
+
+def _warn_missed(method: str, missed) -> None:
+    """`warnings.warn` when `method` left out more than `MISSED_FLUX_WARNING` of the
+    light (concrete values only: under `jit` the fraction is in the result alone)."""
+    if method not in _MISSED_ADVICE or isinstance(missed, jax.core.Tracer):
+        return
+    worst = float(np.nanmax(np.asarray(missed, float), initial=0.0))
+    if worst > MISSED_FLUX_WARNING:
+        warnings.warn(
+            f"render: method {method!r} missed {worst:.1%} of the light (the image is that "
+            f"much too dark; `missed_flux_fraction` in the stats): {_MISSED_ADVICE[method]}",
+            stacklevel=3,
+        )
 
 
 def check_knob_names(method: str, knobs: dict) -> None:
@@ -77,7 +109,9 @@ def render(
       INFO) and, with `return_stats`, returned as ``stats["choice"]`` (a `Choice`: method,
       knobs, expected error and time). `margin`: see `choose_method`.
     - `return_stats`: also return a dict of diagnostics (``missed_flux_fraction`` per
-      channel).
+      channel). Whether asked for or not, a two-pass render that leaves out more than
+      1% of the light (beyond its window) or spot lights that do not carry it warn
+      (`warnings.warn`, with the fraction and the knob to change).
     - `**knobs`: the method's quality knobs (see `two_pass`, `caustic_triangles`,
       `caustics_mapping`, `adaptive_caustic_map`, `spot_lights`).
 
@@ -109,6 +143,7 @@ def render(
         method = DEFAULT_METHOD.get(type(scene).__name__, "twopass")
     check_knob_names(method, knobs)
     result = METHODS[method](scene, **knobs)
+    _warn_missed(method, result.missed_flux_fraction)
     if return_stats:
         stats: dict[str, Array] = {"missed_flux_fraction": result.missed_flux_fraction}
         stats.update(getattr(result, "stats", {}))
