@@ -88,7 +88,8 @@ def worker(n_devices: int, size: dict) -> dict:
     import jaxcaustics as jc
     from jaxcaustics._inverse.design import design_lens_variants
     from jaxcaustics._methods.triangles import caustic_triangles
-    from jaxcaustics._sharding import gather_to_host, map_sharded, render_batch, stack_scenes
+    from jaxcaustics._render_batch import render_batch
+    from jaxcaustics._sharding import gather_to_host, map_sharded, stack_scenes
 
     assert len(jax.devices()) == n_devices, jax.devices()
     rng = np.random.default_rng(0)

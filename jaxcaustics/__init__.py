@@ -205,6 +205,9 @@ from ._photons import (
     Photons as Photons,
 )
 from ._render import render as render
+from ._render_batch import (
+    render_batch as render_batch,
+)
 from ._scene import (
     DirectionalLight as DirectionalLight,
 )
@@ -234,9 +237,6 @@ from ._sharding import (
 )
 from ._sharding import (
     map_sharded as map_sharded,
-)
-from ._sharding import (
-    render_batch as render_batch,
 )
 from ._sharding import (
     stack_scenes as stack_scenes,

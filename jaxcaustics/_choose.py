@@ -26,6 +26,7 @@ from typing import Any
 
 import numpy as np
 
+from . import reference
 from ._checks import check_choice, check_number, check_real_array
 from ._ellipsoid import EllipsoidScene
 from ._mesh import MeshScene
@@ -134,8 +135,6 @@ def reference_image(scene, **knobs) -> np.ndarray:
     `trace_lens`, `trace_mesh` or `trace_ellipsoid` by the scene's kind, with `knobs`
     (``photons_per_axis``: per pixel side for water, across the object otherwise)."""
     import inspect
-
-    from . import reference
 
     tracer = {
         "water": reference.trace_water,

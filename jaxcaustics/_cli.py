@@ -22,6 +22,10 @@ from pathlib import Path
 
 import numpy as np
 
+import jaxcaustics as jc
+from jaxcaustics import __version__
+from jaxcaustics._methods.twopass import MAX_AUTO_HALF_WINDOW
+
 from ._cli_inverse import (
     MAX_PIXELS,
     _count,
@@ -296,9 +300,6 @@ def _render_water(args: argparse.Namespace) -> int:
     import jax
     from tqdm import tqdm
 
-    import jaxcaustics as jc
-    from jaxcaustics._methods.twopass import MAX_AUTO_HALF_WINDOW
-
     rows, cols = args.size
     if args.extent is None:
         width = 4.0
@@ -467,7 +468,6 @@ _COMMANDS: list[Callable[[argparse._SubParsersAction], None]] = [
 
 
 def build_parser() -> argparse.ArgumentParser:
-    from jaxcaustics import __version__
 
     parser = argparse.ArgumentParser(
         prog="jaxcaustics",

@@ -21,6 +21,16 @@ from pathlib import Path
 
 import numpy as np
 
+from . import reference
+from ._export import export_lens
+from ._inverse.checkpoint import run_rounds
+from ._inverse.design import _resample, default_levels, design_lens, transport_shape
+from ._inverse.sequence import frame_paths, load_frames, recover_sequence
+from ._inverse.verify import verify_lens
+from ._io import check_folder, read_image, write_exr, write_png
+from ._scene import DirectionalLight, HeightField, PlaneReceiver, WaterScene
+from ._waves import wave_heights
+
 UNITS = {"mm": 1e-3, "cm": 1e-2, "m": 1.0}
 # most pixels of a design target, a recovered grid or a rendered map (4096^2)
 MAX_PIXELS = 1 << 24
@@ -91,7 +101,6 @@ def zenith(text: str) -> float:
 
 def output_folder(path: Path) -> Path:
     """`--output`, created (with its parents) if missing, else a `ValueError` naming it."""
-    from ._io import check_folder
 
     try:
         check_folder(path, "--output")
@@ -134,8 +143,6 @@ def _load_target(spec: str | None, size: int) -> np.ndarray:
     """The target picture as a float image: a file (PNG, EXR, ...) or a scikit-image
     bundled picture by name (default ``camera``), resized to `size` columns."""
     from skimage import data, transform
-
-    from ._io import read_image
 
     name = spec or "camera"
     not_a_picture = f"`TARGET` {name!r} is neither a file nor a scikit-image picture"
@@ -273,8 +280,6 @@ def _run_levels(
     or a checkpoint of a finished run), else None."""
     import jax.numpy as jnp
 
-    from ._inverse.checkpoint import run_rounds
-
     checkpoint = out / f"{label}.ckpt.npz"  # `run_design` checked it is there with --resume
     _, done, interrupted = run_rounds(
         rounds,
@@ -293,10 +298,6 @@ def _run_levels(
 
 def run_design(args: argparse.Namespace) -> int:
     import jax.numpy as jnp
-
-    from ._export import export_lens
-    from ._inverse.design import _resample, default_levels, design_lens, transport_shape
-    from ._io import write_png
 
     out = output_folder(args.output)
     resume_checkpoint(out / "design.ckpt.npz", args.resume)
@@ -373,8 +374,6 @@ def run_design(args: argparse.Namespace) -> int:
         "files": {k: str(v) for k, v in paths.items()},
     }
     if args.verify:
-        from ._inverse.verify import verify_lens
-
         photons = 8 * max(design.target.shape)  # 64 photons per pixel on average
         report = verify_lens(design.scene, design.target, photons_per_axis=photons)
         print(report)
@@ -509,8 +508,6 @@ _RECOVER_FLAGS = {
 
 def _built_in_sea(args, extent, light) -> tuple[np.ndarray, np.ndarray]:
     """The CLI's demonstration: a 64^2 sea and its caustic traced by the reference."""
-    from . import HeightField, PlaneReceiver, WaterScene, reference
-    from ._waves import wave_heights
 
     n = args.heights or 64
     truth = np.asarray(
@@ -553,9 +550,6 @@ def _write_residual(path: Path, residual: np.ndarray) -> None:
 
 
 def run_recover(args: argparse.Namespace) -> int:
-    from . import DirectionalLight, write_exr
-    from ._inverse.sequence import frame_paths, load_frames, recover_sequence
-    from ._io import write_png
 
     try:
         factors = tuple(int(v) for v in args.levels.split(","))

@@ -57,6 +57,7 @@ from jaxtyping import Array, Bool, Float, Int
 
 from ._intersect import face_normals, nearest_hits, ray_triangle_distances
 from ._mesh import Mesh
+from ._raster import rasterize_gouraud, window_for
 
 # (N, U, V) per face, in the order +x, -x, +y, -y, +z, -z.
 _FRAMES = np.zeros((6, 3, 3))
@@ -965,7 +966,6 @@ def light_cube_map(
 
     **Returns:** a `LightCubeMap`.
     """
-    from ._raster import window_for
 
     if isinstance(dmap_or_center, LayeredDistanceMap):
         center = dmap_or_center.center
@@ -1001,7 +1001,6 @@ def light_cube_map(
 
 @eqx.filter_jit
 def _light_cube_map(center, hit_points, vertex_irradiance, valid, resolution, window, supersample):
-    from ._raster import rasterize_gouraud
 
     dtype = hit_points.dtype
     xy, drawable, in_front = _face_triangles(center, hit_points, valid, resolution)

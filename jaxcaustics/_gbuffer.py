@@ -27,7 +27,7 @@ import numpy as np
 from jaxtyping import Array, Bool, Float
 
 from ._checks import check_array, check_broadcast, check_int
-from ._intersect import face_normals, hit_on_triangle, moller_trumbore, vertex_normals
+from ._intersect import face_normals, hit_on_triangle, moller_trumbore, nearest_hits, vertex_normals
 from ._light_view import LightView
 from ._mesh import MeshScene
 from ._optics import fresnel_transmittance, reflect, refract_components
@@ -348,7 +348,6 @@ def intersection_errors(
     (needs concrete values). Near the silhouette the update contracts slowly (the
     refracted ray runs almost along the back surface in the light's view), so the 90th
     percentile lags far behind the median."""
-    from ._intersect import nearest_hits
 
     view = buffers.view
     u, v = view.texel_centres((photons, photons))

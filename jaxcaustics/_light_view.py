@@ -23,7 +23,8 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Float
 
-from ._scene import DirectionalLight
+from ._mesh import Mesh
+from ._scene import DirectionalLight, PlaneReceiver, PointLight
 
 
 class LightView(eqx.Module):
@@ -141,8 +142,6 @@ def light_view(scene) -> LightView:
     images are sampled, not physics); the light's direction, position and intensity carry
     their derivatives into the photons. A point light that does not see the whole scene
     from one side (inside or below its bounding box) has no view: a `ValueError`."""
-    from ._mesh import Mesh
-    from ._scene import PlaneReceiver, PointLight
 
     if not (
         isinstance(getattr(scene, "generator", None), Mesh)

@@ -7,8 +7,8 @@ of `jax.devices()`, which after `jax.distributed.initialize` spans every host), 
 
 - `map_sharded`: a function over the items of a batch (CSL fits per light direction, the
   lens design's solves per variant), results gathered to NumPy on every process.
-- `render_batch`: a batch of scenes (`stack_scenes`) rendered with `jax.shard_map`, each
-  device rendering its share; differentiable.
+- `stack_scenes`: a batch of scenes, rendered by `render_batch` (`_render_batch`: it
+  needs the methods, which use this module's meshes, so it lives above both).
 - `gather_to_host`: NumPy copies of (possibly multi-host) arrays on every process.
 
 Several hosts: run the same script on every host after `jax.distributed.initialize`;
@@ -20,7 +20,6 @@ devices it drives, and results are gathered with `process_allgather` (see
 from __future__ import annotations
 
 import dataclasses
-import inspect
 from collections.abc import Callable, Iterable, Sequence
 from concurrent.futures import ThreadPoolExecutor
 
@@ -120,7 +119,7 @@ def map_sharded(
     if not callable(fn):
         raise ValueError(f"`fn` must be a function fn(shared, item), got {type(fn).__name__}")
     devices = resolve_devices(devices)
-    n = _batch_size(batch, "batch")
+    n = batch_size_of(batch, "batch")
     n_dev = len(devices)
     chunk = check_int(n_dev if chunk is None else chunk, "chunk", 1)
     progress = check_bool(progress, "progress")
@@ -130,10 +129,10 @@ def map_sharded(
     chunk = min(chunk, -(-n // n_dev) * n_dev)
     padded = -(-n // chunk) * chunk
 
-    batch = jax.tree.map(lambda x: _pad_leading(np.asarray(x), padded), batch)
+    batch = jax.tree.map(lambda x: pad_leading(np.asarray(x), padded), batch)
     mesh = device_mesh(devices)
     split = NamedSharding(mesh, PartitionSpec(MESH_AXIS))
-    per_device = _per_device(per_device, devices)
+    per_device = check_per_device(per_device, devices)
     arrays, static = eqx.partition(shared, eqx.is_array)
     mine = _addressable(devices)
     if not mine:
@@ -287,11 +286,11 @@ def stack_scenes(scenes: Sequence):
 
 def unstack_scenes(scenes) -> list:
     """The scenes of a batch made by `stack_scenes`, one by one."""
-    n = _batch_size(scenes)
+    n = batch_size_of(scenes)
     return [jax.tree.map(lambda x, i=i: x[i], scenes) for i in range(n)]
 
 
-def _batch_size(tree, name: str = "scenes") -> int:
+def batch_size_of(tree, name: str = "scenes") -> int:
     """The common leading (batch) size of the arrays of `tree`, named `name` in errors."""
     leaves = jax.tree.leaves(tree)
     if not leaves or any(np.ndim(x) == 0 for x in leaves):
@@ -305,7 +304,7 @@ def _batch_size(tree, name: str = "scenes") -> int:
     return n
 
 
-def _per_device(per_device: str | None, devices: list[jax.Device]) -> str:
+def check_per_device(per_device: str | None, devices: list[jax.Device]) -> str:
     """`per_device` checked, or its default: ``"map"`` on CPU, ``"vmap"`` elsewhere."""
     if per_device is None:
         return "map" if devices[0].platform == "cpu" else "vmap"
@@ -314,140 +313,8 @@ def _per_device(per_device: str | None, devices: list[jax.Device]) -> str:
     return per_device
 
 
-def _pad_leading(x, size: int):
+def pad_leading(x, size: int):
     """`x` (NumPy or JAX) padded along its leading axis to `size` with copies of its last
     item."""
     xp = np if isinstance(x, np.ndarray) else jnp
     return xp.concatenate([x, xp.repeat(x[-1:], size - x.shape[0], axis=0)])
-
-
-def _default(method_fn: Callable, name: str):
-    return inspect.signature(method_fn).parameters[name].default
-
-
-def _is_auto(value) -> bool:
-    return isinstance(value, str) and value == "auto"
-
-
-def _resolve_auto_knobs(scenes, method: str, method_fn: Callable, knobs: dict) -> dict:
-    """Knobs that ``"auto"`` sizes from concrete scene values (the two-pass window, the
-    triangles' window) become the largest over the batch, so one program renders all."""
-    knobs = dict(knobs)
-    traced = any(isinstance(x, jax.core.Tracer) for x in jax.tree.leaves(scenes))
-    if method == "twopass":
-        names = ("samples_x", "channels_y")
-        if any(_is_auto(knobs.get(k, _default(method_fn, k))) for k in names):
-            if traced:
-                raise ValueError(
-                    "samples_x='auto' needs concrete scene values; under jit/grad pass ints"
-                )
-            from ._methods.twopass import auto_window
-
-            hit = knobs.get("hit_iterations", _default(method_fn, "hit_iterations"))
-            sup = knobs.get("supersample", _default(method_fn, "supersample"))
-            windows = np.array([auto_window(s, hit, sup) for s in unstack_scenes(scenes)])
-            knobs["samples_x"], knobs["channels_y"] = (int(v) for v in windows.max(axis=0))
-    elif method == "triangles":
-        visibility = knobs.get("visibility", _default(method_fn, "visibility"))
-        if _is_auto(knobs.get("window", _default(method_fn, "window"))) and visibility == "exact":
-            if traced:
-                raise ValueError(
-                    "window='auto' needs concrete scene values; under jit/grad pass an int"
-                )
-            from ._methods.triangles import _check_grid, trace_photons, triangle_window
-
-            grid = _check_grid(knobs.get("photons", _default(method_fn, "photons")))
-            hit = knobs.get("hit_iterations", _default(method_fn, "hit_iterations"))
-            extra = {
-                k: knobs[k] for k in ("batch_size", "memory_limit") if knobs.get(k) is not None
-            }
-            knobs["window"] = max(
-                triangle_window(trace_photons(s, grid, hit, **extra), s.receiver)
-                for s in unstack_scenes(scenes)
-            )
-    return knobs
-
-
-@eqx.filter_jit
-def _render_sharded(arrays, static, knobs, method_fn, mesh, per_device):
-    """Each device renders its share of the batch (`jax.shard_map`), vectorised or item
-    after item."""
-    knob_arrays, knob_static = eqx.partition(knobs, eqx.is_array)
-
-    def local(arrays, knob_arrays):
-        kw = eqx.combine(knob_arrays, knob_static)
-
-        def one(a):
-            return method_fn(eqx.combine(a, static), **kw).image
-
-        return jax.vmap(one)(arrays) if per_device == "vmap" else jax.lax.map(one, arrays)
-
-    spec = PartitionSpec(MESH_AXIS)
-    # check_vma=False: the methods' loops (scans with zero-initialised carries) are not
-    # written for shard_map's varying-type checks; nothing here communicates
-    return jax.shard_map(
-        local, mesh=mesh, in_specs=(spec, PartitionSpec()), out_specs=spec, check_vma=False
-    )(arrays, knob_arrays)
-
-
-def render_batch(
-    scenes,
-    method: str | None = None,
-    *,
-    devices: Sequence[jax.Device] | int | None = None,
-    per_device: str | None = None,
-    **knobs,
-) -> jax.Array:
-    """Render a batch of scenes (surfaces, lenses, ...), split across `devices`.
-
-    **Arguments:**
-
-    - `scenes`: a batch made by `stack_scenes` (one scene whose arrays carry a leading
-      batch axis of size ``n``), or a sequence of scenes (stacked here).
-    - `method`: as for `render` (default: the scene type's natural method). The method
-      must trace under `jax.vmap`: ``"twopass"`` and ``"triangles"`` do; knobs that
-      ``"auto"`` sizes from scene values (the two-pass window ``samples_x`` /
-      ``channels_y``, the triangles' ``window``) are sized beforehand, the largest over
-      the batch, which needs concrete scenes (under `jax.grad` or `jax.jit` pass ints).
-    - `devices`: ``None`` (all of `jax.devices()`), an int ``n`` (the first ``n``) or a
-      sequence of devices.
-    - `per_device`: ``"vmap"`` (each device renders its share vectorised; the default on
-      GPU/TPU) or ``"map"`` (scene after scene with ``jax.lax.map``: less memory; the
-      default on CPU). Gradients need ``"map"`` for now: reverse-mode through the
-      vectorised ray-surface hit fails inside JAX (a `broadcast_in_dim` error).
-    - `**knobs`: the method's knobs (as for `render`), the same for every scene.
-
-    The batch is padded (with copies of its last scene) to a multiple of the device count,
-    placed with ``NamedSharding(mesh, PartitionSpec(MESH_AXIS))`` and rendered by
-    `jax.shard_map`: each device renders its own contiguous share.
-
-    **Returns:** the images, a `jax.Array` of shape ``(n, rows, cols)`` (``(n, rows,
-    cols, channels)`` with several indices of refraction), left on the devices (split
-    along the batch); differentiable with respect to the scenes' arrays. `gather_to_host`
-    copies it to NumPy (on every process, when the devices span several hosts).
-    """
-    from ._render import DEFAULT_METHOD, METHODS, check_knob_names
-
-    if method is not None:  # checked before the scenes are stacked (that compiles)
-        if not isinstance(method, str) or method not in METHODS:
-            raise ValueError(f"`method` must be one of {sorted(METHODS)}, got {method!r}")
-        check_knob_names(method, knobs)
-    if isinstance(scenes, list | tuple):
-        scenes = stack_scenes(scenes)
-    if not isinstance(scenes, eqx.Module):
-        raise ValueError(f"`scenes` must be a batch of scenes, got {type(scenes).__name__}")
-    n = _batch_size(scenes)
-    if method is None:
-        method = DEFAULT_METHOD.get(type(scenes).__name__, "twopass")
-        check_knob_names(method, knobs)
-    devices = resolve_devices(devices)
-    per_device = _per_device(per_device, devices)
-    knobs = _resolve_auto_knobs(scenes, method, METHODS[method], knobs)
-
-    mesh = device_mesh(devices)
-    padded = -(-n // len(devices)) * len(devices)
-    arrays, static = eqx.partition(scenes, eqx.is_array)
-    arrays = jax.tree.map(lambda x: _pad_leading(x, padded), arrays)
-    arrays = jax.device_put(arrays, NamedSharding(mesh, PartitionSpec(MESH_AXIS)))
-    images = _render_sharded(arrays, static, knobs, METHODS[method], mesh, per_device)
-    return images if padded == n else images[:n]

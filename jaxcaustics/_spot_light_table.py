@@ -68,9 +68,18 @@ import numpy as np
 from jaxtyping import Array, Bool, Float, Int
 
 from ._checks import check_array, check_bool, check_int, check_number
+from ._ellipsoid import EXIT_RAY_FLOATS, trace_exit_rays
 from ._light_view import orthonormal_basis
 from ._raster import check_fits, check_memory_limit
-from ._sharding import _per_device, map_sharded, resolve_devices
+from ._sharding import check_per_device, map_sharded, resolve_devices
+from ._spot_light_fit import (
+    DISTANCE_THRESHOLD,
+    check_fit_knobs,
+    check_refine_knobs,
+    fit_bytes,
+    fit_spot_lights,
+    refine_axis,
+)
 from ._spot_lights import SpotLights, sample_light_plane
 
 DEFAULT_MATCH_FRACTION = 0.25
@@ -744,8 +753,6 @@ def build_spot_light_table(
 def _fit_direction(scene, direction, *, rays_per_axis, fit_knobs, memory_limit=None):
     """The CSL set for a light travelling along `direction` ``(3,)``, and the object's
     centre and size."""
-    from ._ellipsoid import trace_exit_rays
-    from ._spot_light_fit import fit_spot_lights
 
     rays = trace_exit_rays(scene, rays_per_axis, direction=direction, memory_limit=memory_limit)
     lights, _ = fit_spot_lights(rays, memory_limit=memory_limit, **fit_knobs)
@@ -764,8 +771,6 @@ def _track_edge(scene, item, *, steps, rays_per_axis, refine_knobs, memory_limit
     the old origin. An axis whose bundle lost all rays, or went non-finite, stays where it
     was. **Returns** the moved ``(origin (K, 3), axis (K, 3))``.
     """
-    from ._ellipsoid import trace_exit_rays
-    from ._spot_light_fit import refine_axis
 
     def step(carry, t):
         origin, axis = carry
@@ -808,8 +813,6 @@ def _check_table_memory(
     rays of `EXIT_RAY_FLOATS` numbers: 21 measured in float64 with `refine_axis`; the
     `tracking_steps` slerp parameters), and the
     table's light images (``V x max_lights x resolution^2``, twice: fitted, canonical)."""
-    from ._ellipsoid import EXIT_RAY_FLOATS
-    from ._spot_light_fit import fit_bytes
 
     itemsize = jnp.dtype(jnp.result_type(float)).itemsize
     sizes = {n: knobs[n] for n in ("max_lights", "resolution", "cells", "splat_window", "chunk")}
@@ -831,8 +834,6 @@ def _default_refine_knobs(fit_knobs: dict, size: float) -> dict:
     ``DISTANCE_THRESHOLD x size``), ``angle_threshold_deg`` and ``axis_iterations``, given
     in `fit_knobs` or defaulted by `fit_spot_lights`."""
     import inspect
-
-    from ._spot_light_fit import DISTANCE_THRESHOLD, fit_spot_lights
 
     defaults = {
         name: p.default for name, p in inspect.signature(fit_spot_lights).parameters.items()
@@ -897,7 +898,6 @@ def precompute_spot_lights(
       the table's light images; more raise a `ValueError` before any work.
     - `fit_knobs`: keyword arguments of `fit_spot_lights` (``max_lights``, ...).
     """
-    from ._spot_light_fit import check_fit_knobs, check_refine_knobs
 
     subdivisions = check_int(subdivisions, "subdivisions", 0, MAX_SUBDIVISIONS)
     rays_per_axis = check_int(rays_per_axis, "rays_per_axis", 2)
@@ -916,7 +916,7 @@ def precompute_spot_lights(
     knob_values = check_fit_knobs(**fit_knobs)
     progress = check_bool(progress, "progress")
     devices = resolve_devices(devices)
-    per_device = _per_device(per_device, devices)
+    per_device = check_per_device(per_device, devices)
     chunk = check_int(4 * len(devices) if chunk is None else chunk, "chunk", 1)
     _check_table_memory(
         subdivisions,

@@ -50,6 +50,7 @@ from conftest import make_scene
 
 import jaxcaustics as jc
 from jaxcaustics import _distance_map, _ellipsoid, _gbuffer, _optics, _photons, _spot_lights
+from jaxcaustics._methods import triangles as triangles_module
 from jaxcaustics._methods import twopass
 from jaxcaustics._methods.triangles import CubeMapOptions
 
@@ -552,8 +553,9 @@ def _distance_map_occlusion_work(monkeypatch, scene) -> dict:
         seen["shadow_test"] = kwargs.get("shadow_test", True)
         return project(*args, **kwargs)
 
-    monkeypatch.setattr(_distance_map, "build_distance_map", build_spy)
-    monkeypatch.setattr(_distance_map, "project_light_cube_map", project_spy)
+    # (patched where the pipeline looks them up: `_methods.triangles` imports them)
+    monkeypatch.setattr(triangles_module, "build_distance_map", build_spy)
+    monkeypatch.setattr(triangles_module, "project_light_cube_map", project_spy)
     _trace(distance_map, scene)
     return seen
 

@@ -15,10 +15,10 @@ from _subprocess import run_python
 
 import jaxcaustics as jc
 from jaxcaustics._inverse.design import design_lens_variants
+from jaxcaustics._render_batch import render_batch
 from jaxcaustics._sharding import (
     _addressable,
     gather_to_host,
-    render_batch,
     stack_scenes,
     unstack_scenes,
 )
@@ -33,7 +33,8 @@ SCRIPT = textwrap.dedent(
     import jax.numpy as jnp
     import numpy as np
     import jaxcaustics as jc
-    from jaxcaustics._sharding import MESH_AXIS, gather_to_host, render_batch, stack_scenes
+    from jaxcaustics._render_batch import render_batch
+    from jaxcaustics._sharding import MESH_AXIS, gather_to_host, stack_scenes
 
     assert len(jax.devices()) == 4, jax.devices()
     rng = np.random.default_rng(0)
@@ -76,7 +77,7 @@ SCRIPT = textwrap.dedent(
     images = render_batch(lenses, photons=21)  # a list is stacked here
     assert images.sharding.spec == jax.sharding.PartitionSpec(MESH_AXIS)  # split 4 ways
     assert len(images.sharding.device_set) == 4
-    from jaxcaustics._sharding import _resolve_auto_knobs
+    from jaxcaustics._render_batch import _resolve_auto_knobs
     from jaxcaustics._render import METHODS
     window = _resolve_auto_knobs(
         stack_scenes(lenses), "triangles", METHODS["triangles"], {"photons": 21}

@@ -73,9 +73,17 @@ import numpy as np
 import optimistix as optx
 
 from .._checks import check_bool, check_int, check_number, check_real_array, check_shape
+from .._methods.triangles import (
+    band_bytes,
+    caustic_triangles,
+    trace_photons,
+    triangle_window,
+    triangles_image,
+)
 from .._optics import refract_components
 from .._photons import _grid
 from .._scene import DirectionalLight, HeightField, LensScene, PlaneReceiver, PointLight
+from .._sharding import check_per_device, map_sharded, resolve_devices
 from .._surface import (
     _PAD_LOW,
     _catmull_rom,
@@ -84,7 +92,7 @@ from .._surface import (
     sample_grid,
 )
 from .._surface import bilinear as _bilinear
-from .._transport import MAX_ITERATIONS, MAX_PIXELS
+from .._transport import MAX_ITERATIONS, MAX_PIXELS, transport_map
 from .._transport import neumann_poisson as _neumann_poisson
 from .recover import MAX_CG_STEPS, check_irradiance, resample_heights
 from .recover import _laplacian as _five_point
@@ -582,7 +590,6 @@ def _transport_goal(
     [1, 2, 1] / 4 kernel along each axis (for a fit that reads it between its samples:
     leaning light). Returns ``(goal_x, goal_y, transport)`` (metres; the
     `TransportMap`)."""
-    from .._transport import transport_map
 
     top = setup.throw + setup.thickness
     source = _source_density(setup.light, setup.aperture, shape, top)
@@ -652,7 +659,6 @@ class _ImageRefine(eqx.Module):
         return jax.scipy.fft.idctn(coef, type=2, norm="ortho")
 
     def image(self, u):
-        from .._methods.triangles import caustic_triangles
 
         h = self.heights(u)
         scene = eqx.tree_at(lambda sc: sc.surface.heights, self.scene, h - jnp.max(h))
@@ -1390,7 +1396,6 @@ def _check_design_memory(shape, oversample: int, extra: int, photons: int = 0) -
     half of this machine's (it would swap or be killed after minutes of work): the
     (largest) heights grid `shape` times `oversample`^2 photon cells, `extra` bytes,
     and the predicted caustic's grid of `photons`^2 photons (traced at once)."""
-    from .._methods.triangles import band_bytes
 
     samples = shape[0] * shape[1] * oversample**2
     grid = _BYTES_PER_SAMPLE * samples
@@ -1699,7 +1704,6 @@ def _finish(setup: _Setup, h, history, level_reports, result, t_start: float) ->
         raise ValueError(msg)
     final = _lens_scene(setup, h)
     t0 = time.perf_counter()
-    from .._methods.triangles import trace_photons, triangle_window, triangles_image
 
     n_pred = setup.predict_photons or _predict_photons(setup.target_shape)
     # the window that holds 99.9% of the flux, at most _PREDICT_WINDOW pixels: the few
@@ -1837,7 +1841,6 @@ def design_lens_variants(
     variants together; ``first_step_seconds`` is NaN). Invalid specifications raise
     `ValueError` before any optimisation starts.
     """
-    from .._sharding import _per_device, map_sharded, resolve_devices
 
     t_start = time.perf_counter()
     for name in ("throw", "callback"):
@@ -1853,7 +1856,7 @@ def design_lens_variants(
     throws = [check_number(t, f"throws[{i}]") for i, t in enumerate(throws)]  # > 0: `_prepare`
     throw_errors = check_bool(throw_errors, "throw_errors")
     # bad `devices` or `per_device` fail before the set-up
-    _per_device(per_device, resolve_devices(devices))
+    check_per_device(per_device, resolve_devices(devices))
     unknown = set(design_kwargs) - set(inspect.signature(design_lens).parameters)
     if unknown:
         raise ValueError(f"unknown arguments of design_lens: {sorted(unknown)}")

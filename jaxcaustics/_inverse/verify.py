@@ -15,7 +15,9 @@ import math
 
 import numpy as np
 
+from .. import reference
 from .._checks import check_int, check_real_array
+from .._export import lens_solid
 from .._mesh import Mesh, MeshScene
 from .._scene import DirectionalLight, LensScene, PlaneReceiver
 from .design import _check_mask
@@ -58,7 +60,6 @@ def relative_l2(image, target, mask=None) -> float:
 def solid_scene(scene: LensScene, *, samples=None) -> MeshScene:
     """The exported solid of `scene`'s lens, in metres at its place above the screen, as a
     `MeshScene` with the same light, screen, index and Fresnel setting."""
-    from .._export import lens_solid
 
     solid = lens_solid(scene, samples=samples)  # millimetres, origin at the corner
     x0, _, y0, _ = (float(v) for v in np.asarray(scene.surface.extent))
@@ -149,7 +150,6 @@ def verify_lens(
 
     **Returns:** a `Verification`.
     """
-    from .. import reference
 
     if not isinstance(scene, LensScene):
         raise ValueError(f"`scene` must be a LensScene, got {type(scene).__name__}")

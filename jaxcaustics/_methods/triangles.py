@@ -35,6 +35,12 @@ import numpy as np
 from jaxtyping import Array, Bool, Float
 
 from .._checks import check_bool, check_choice, check_int, check_number
+from .._distance_map import (
+    build_distance_map,
+    light_cube_map,
+    project_light_cube_map,
+    trace_distance_map,
+)
 from .._intersect import search_bytes
 from .._mesh import MeshScene
 from .._photons import Photons, lens_photons, mesh_photons
@@ -454,7 +460,6 @@ def _cube_centre(scene: MeshScene) -> Array:
 
 @eqx.filter_jit
 def _distance_map_photons(scene: MeshScene, dmap, grid, batch_size, options: CubeMapOptions):
-    from .._distance_map import trace_distance_map
 
     def terminal(origins, directions):
         hit = trace_distance_map(
@@ -484,7 +489,6 @@ def _cube_map_triangles(photons: Photons):
 
 
 def _cube_map_image(photons: Photons, centre, receiver: PlaneReceiver, options: CubeMapOptions):
-    from .._distance_map import light_cube_map, project_light_cube_map
 
     corners, irradiance, valid = _cube_map_triangles(photons)
     rows, cols = receiver.shape
@@ -506,7 +510,6 @@ def _cube_map_image(photons: Photons, centre, receiver: PlaneReceiver, options: 
 
 
 def _distance_map_caustics(scene: MeshScene, grid, batch_size, options: CubeMapOptions):
-    from .._distance_map import build_distance_map
 
     if not scene.occluders:
         # the screen alone: one layer holds it, and every caustic lands on it (no

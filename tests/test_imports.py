@@ -1,0 +1,100 @@
+"""The package's own imports: all at the top of a module, and no cycle among them.
+
+Reads every module of `jaxcaustics` with `ast` (nothing is imported), so that the
+dependency graph is the one the files show: a function-local import hides an edge (and
+is how a cycle is usually papered over), and a cycle means two modules that cannot be
+read, tested or moved apart.
+"""
+
+import ast
+from pathlib import Path
+
+PACKAGE = Path(__file__).resolve().parent.parent / "jaxcaustics"
+
+
+def _module_name(path: Path) -> str:
+    parts = path.relative_to(PACKAGE.parent).with_suffix("").parts
+    return ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
+
+
+def _is_module(name: str) -> bool:
+    path = PACKAGE.parent.joinpath(*name.split("."))
+    return path.with_suffix(".py").is_file() or (path / "__init__.py").is_file()
+
+
+def _targets(node, importer: str, is_package: bool) -> list[str]:
+    """The package modules an import statement reads (a name imported from a package
+    that is a module of its own counts as that module)."""
+    if isinstance(node, ast.Import):
+        return [a.name for a in node.names if a.name.split(".")[0] == "jaxcaustics"]
+    if node.level:
+        base = importer.split(".")
+        base = base if is_package else base[:-1]
+        base = base[: len(base) - (node.level - 1)]
+        source = ".".join(base + ([node.module] if node.module else []))
+    else:
+        source = node.module or ""
+    if source.split(".")[0] != "jaxcaustics":
+        return []
+    found = []
+    for alias in node.names:
+        sub = f"{source}.{alias.name}"
+        found.append(sub if _is_module(sub) else source)
+    return found
+
+
+def _imports():
+    """``{module: (top-level targets, [(line, target) of function-local imports])}``."""
+    graph = {}
+    for path in sorted(PACKAGE.rglob("*.py")):
+        name = _module_name(path)
+        tree = ast.parse(path.read_text(), str(path))
+        is_package = path.name == "__init__.py"
+        top, local = set(), []
+        top_nodes = set()
+        for node in tree.body:
+            for inner in ast.walk(node) if isinstance(node, ast.If) else [node]:
+                if isinstance(inner, (ast.Import, ast.ImportFrom)):
+                    top_nodes.add(id(inner))
+                    top.update(_targets(inner, name, is_package))
+        for node in ast.walk(tree):
+            if isinstance(node, (ast.Import, ast.ImportFrom)) and id(node) not in top_nodes:
+                local += [(node.lineno, t) for t in _targets(node, name, is_package)]
+        graph[name] = (top - {name}, local)
+    return graph
+
+
+def test_no_function_local_import_of_the_package():
+    local = {
+        f"{module}:{line} imports {target}"
+        for module, (_, found) in _imports().items()
+        for line, target in found
+    }
+    assert not local, "imports inside functions:\n" + "\n".join(sorted(local))
+
+
+def test_no_import_cycle():
+    graph = {m: top for m, (top, _) in _imports().items()}
+    # the package's __init__ re-exports its modules: edges into it are what can cycle
+    cycles = []
+    state = {}
+
+    def visit(module, path):
+        state[module] = "open"
+        for target in sorted(graph.get(module, ())):
+            if state.get(target) == "open":
+                cycles.append(path[path.index(target) :] + [target])
+            elif target not in state:
+                visit(target, path + [target])
+        state[module] = "done"
+
+    for module in sorted(graph):
+        if module not in state:
+            visit(module, [module])
+    assert not cycles, "import cycles:\n" + "\n".join(" -> ".join(c) for c in cycles)
+
+
+def test_the_walk_sees_the_package():
+    graph = _imports()
+    assert "jaxcaustics._render" in graph and "jaxcaustics.reference" in graph
+    assert "jaxcaustics._methods.twopass" in graph["jaxcaustics._render"][0]
