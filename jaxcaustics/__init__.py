@@ -22,285 +22,180 @@ water surface from its caustic).
 import importlib.metadata
 
 from ._choose import (
-    Choice as Choice,
+    Choice,
+    accuracy_table,
+    choose_method,
+    image_error,
+    method_support,
+    reference_image,
 )
-from ._choose import (
-    accuracy_table as accuracy_table,
-)
-from ._choose import (
-    choose_method as choose_method,
-)
-from ._choose import (
-    image_error as image_error,
-)
-from ._choose import (
-    method_support as method_support,
-)
-from ._choose import (
-    reference_image as reference_image,
-)
-from ._ellipsoid import (
-    Ellipsoid as Ellipsoid,
-)
-from ._ellipsoid import (
-    EllipsoidScene as EllipsoidScene,
-)
-from ._ellipsoid import (
-    ExitRays as ExitRays,
-)
-from ._ellipsoid import (
-    trace_exit_rays as trace_exit_rays,
-)
+from ._ellipsoid import Ellipsoid, EllipsoidScene, ExitRays, trace_exit_rays
 from ._export import (
-    ManufacturabilityReport as ManufacturabilityReport,
+    ManufacturabilityReport,
+    export_lens,
+    lens_height_map,
+    lens_solid,
+    manufacturability,
 )
-from ._export import (
-    export_lens as export_lens,
-)
-from ._export import (
-    lens_height_map as lens_height_map,
-)
-from ._export import (
-    lens_solid as lens_solid,
-)
-from ._export import (
-    manufacturability as manufacturability,
-)
-from ._gbuffer import (
-    GeometryBuffers as GeometryBuffers,
-)
-from ._gbuffer import (
-    geometry_buffers as geometry_buffers,
-)
-from ._gbuffer import (
-    ray_geo as ray_geo,
-)
-from ._inverse.design import (
-    LensDesign as LensDesign,
-)
-from ._inverse.design import (
-    design_lens as design_lens,
-)
-from ._inverse.design import (
-    design_lens_variants as design_lens_variants,
-)
-from ._inverse.design import (
-    fresnel_zones as fresnel_zones,
-)
-from ._inverse.recover import (
-    RecoveryResult as RecoveryResult,
-)
-from ._inverse.recover import (
-    recover_surface as recover_surface,
-)
-from ._inverse.sequence import (
-    SequenceResult as SequenceResult,
-)
-from ._inverse.sequence import (
-    recover_sequence as recover_sequence,
-)
-from ._inverse.verify import (
-    Verification as Verification,
-)
-from ._inverse.verify import (
-    relative_l2 as relative_l2,
-)
-from ._inverse.verify import (
-    verify_lens as verify_lens,
-)
-from ._io import (
-    read_exr as read_exr,
-)
-from ._io import (
-    read_image as read_image,
-)
-from ._io import (
-    write_exr as write_exr,
-)
-from ._io import (
-    write_png as write_png,
-)
-from ._io import (
-    write_png_linear16 as write_png_linear16,
-)
-from ._light_view import (
-    LightView as LightView,
-)
-from ._light_view import (
-    light_view as light_view,
-)
-from ._mesh import (
-    Mesh as Mesh,
-)
-from ._mesh import (
-    MeshScene as MeshScene,
-)
+from ._gbuffer import GeometryBuffers, geometry_buffers, ray_geo
+from ._inverse.design import LensDesign, design_lens, design_lens_variants, fresnel_zones
+from ._inverse.recover import RecoveryResult, recover_surface
+from ._inverse.sequence import SequenceResult, recover_sequence
+from ._inverse.verify import Verification, relative_l2, verify_lens
+from ._io import read_exr, read_image, write_exr, write_png, write_png_linear16
+from ._light_view import LightView, light_view
+from ._mesh import Mesh, MeshScene
 from ._methods.caustic_map import (
-    CausticMapResult as CausticMapResult,
+    CausticMapResult,
+    PinholeCamera,
+    adaptive_caustic_map,
+    camera_image,
+    caustics_mapping,
+    photon_bytes,
+    project_caustic_map,
 )
-from ._methods.caustic_map import (
-    PinholeCamera as PinholeCamera,
-)
-from ._methods.caustic_map import (
-    adaptive_caustic_map as adaptive_caustic_map,
-)
-from ._methods.caustic_map import (
-    camera_image as camera_image,
-)
-from ._methods.caustic_map import (
-    caustics_mapping as caustics_mapping,
-)
-from ._methods.caustic_map import (
-    photon_bytes as photon_bytes,
-)
-from ._methods.caustic_map import (
-    project_caustic_map as project_caustic_map,
-)
-from ._methods.spot_lights import (
-    SpotLightResult as SpotLightResult,
-)
-from ._methods.spot_lights import (
-    spot_lights as spot_lights,
-)
+from ._methods.spot_lights import SpotLightResult, spot_lights
 from ._methods.triangles import (
-    CubeMapOptions as CubeMapOptions,
+    CubeMapOptions,
+    TrianglesResult,
+    caustic_triangles,
+    splat_photons,
+    trace_photons,
+    triangle_window,
+    triangles_image,
 )
-from ._methods.triangles import (
-    TrianglesResult as TrianglesResult,
-)
-from ._methods.triangles import (
-    caustic_triangles as caustic_triangles,
-)
-from ._methods.triangles import (
-    splat_photons as splat_photons,
-)
-from ._methods.triangles import (
-    trace_photons as trace_photons,
-)
-from ._methods.triangles import (
-    triangle_window as triangle_window,
-)
-from ._methods.triangles import (
-    triangles_image as triangles_image,
-)
-from ._methods.twopass import (
-    TwoPassResult as TwoPassResult,
-)
-from ._methods.twopass import (
-    auto_window as auto_window,
-)
-from ._methods.twopass import (
-    two_pass as two_pass,
-)
-from ._optics import (
-    fresnel_transmittance as fresnel_transmittance,
-)
-from ._optics import (
-    reflect as reflect,
-)
-from ._optics import (
-    refract as refract,
-)
-from ._photons import (
-    Photons as Photons,
-)
-from ._render import render as render
-from ._render_batch import (
-    render_batch as render_batch,
-)
+from ._methods.twopass import TwoPassResult, auto_window, two_pass
+from ._optics import fresnel_transmittance, reflect, refract
+from ._photons import Photons
+from ._render import render
+from ._render_batch import render_batch
 from ._scene import (
-    DirectionalLight as DirectionalLight,
+    DirectionalLight,
+    Effects,
+    HeightField,
+    LensScene,
+    PlaneReceiver,
+    PointLight,
+    WaterScene,
 )
-from ._scene import (
-    Effects as Effects,
-)
-from ._scene import (
-    HeightField as HeightField,
-)
-from ._scene import (
-    LensScene as LensScene,
-)
-from ._scene import (
-    PlaneReceiver as PlaneReceiver,
-)
-from ._scene import (
-    PointLight as PointLight,
-)
-from ._scene import (
-    WaterScene as WaterScene,
-)
-from ._sharding import (
-    device_mesh as device_mesh,
-)
-from ._sharding import (
-    gather_to_host as gather_to_host,
-)
-from ._sharding import (
-    map_sharded as map_sharded,
-)
-from ._sharding import (
-    stack_scenes as stack_scenes,
-)
-from ._sharding import (
-    unstack_scenes as unstack_scenes,
-)
-from ._spot_light_fit import (
-    FitInfo as FitInfo,
-)
-from ._spot_light_fit import (
-    fit_spot_lights as fit_spot_lights,
-)
-from ._spot_light_fit import (
-    refine_axis as refine_axis,
-)
+from ._sharding import device_mesh, gather_to_host, map_sharded, stack_scenes, unstack_scenes
+from ._spot_light_fit import FitInfo, fit_spot_lights, refine_axis
 from ._spot_light_table import (
-    SpotLightTable as SpotLightTable,
-)
-from ._spot_light_table import (
-    icosphere_directions as icosphere_directions,
-)
-from ._spot_light_table import (
-    interpolate_spot_lights as interpolate_spot_lights,
-)
-from ._spot_light_table import (
-    precompute_spot_lights as precompute_spot_lights,
+    SpotLightTable,
+    icosphere_directions,
+    interpolate_spot_lights,
+    precompute_spot_lights,
 )
 from ._spot_lights import (
-    Glossy as Glossy,
+    Glossy,
+    Lambertian,
+    SpotLightRays,
+    SpotLights,
+    evaluate_spot_lights,
+    render_spot_lights,
+    shade_points,
 )
-from ._spot_lights import (
-    Lambertian as Lambertian,
-)
-from ._spot_lights import (
-    SpotLightRays as SpotLightRays,
-)
-from ._spot_lights import (
-    SpotLights as SpotLights,
-)
-from ._spot_lights import (
-    evaluate_spot_lights as evaluate_spot_lights,
-)
-from ._spot_lights import (
-    render_spot_lights as render_spot_lights,
-)
-from ._spot_lights import (
-    shade_points as shade_points,
-)
-from ._surface import height_and_gradient as height_and_gradient
-from ._transport import (
-    TransportMap as TransportMap,
-)
-from ._transport import (
-    transport_map as transport_map,
-)
-from ._waves import (
-    gaussian_bump as gaussian_bump,
-)
-from ._waves import (
-    sine_sum as sine_sum,
-)
-from ._waves import (
-    wave_heights as wave_heights,
-)
+from ._surface import height_and_gradient
+from ._transport import TransportMap, transport_map
+from ._waves import gaussian_bump, sine_sum, wave_heights
 
 __version__ = importlib.metadata.version("jaxcaustics")
+
+# the public surface: everything above (`from jaxcaustics import *` takes these)
+__all__ = [
+    "accuracy_table",
+    "adaptive_caustic_map",
+    "auto_window",
+    "camera_image",
+    "caustic_triangles",
+    "CausticMapResult",
+    "caustics_mapping",
+    "Choice",
+    "choose_method",
+    "CubeMapOptions",
+    "design_lens",
+    "design_lens_variants",
+    "device_mesh",
+    "DirectionalLight",
+    "Effects",
+    "Ellipsoid",
+    "EllipsoidScene",
+    "evaluate_spot_lights",
+    "ExitRays",
+    "export_lens",
+    "fit_spot_lights",
+    "FitInfo",
+    "fresnel_transmittance",
+    "fresnel_zones",
+    "gather_to_host",
+    "gaussian_bump",
+    "geometry_buffers",
+    "GeometryBuffers",
+    "Glossy",
+    "height_and_gradient",
+    "HeightField",
+    "icosphere_directions",
+    "image_error",
+    "interpolate_spot_lights",
+    "Lambertian",
+    "lens_height_map",
+    "lens_solid",
+    "LensDesign",
+    "LensScene",
+    "light_view",
+    "LightView",
+    "manufacturability",
+    "ManufacturabilityReport",
+    "map_sharded",
+    "Mesh",
+    "MeshScene",
+    "method_support",
+    "photon_bytes",
+    "Photons",
+    "PinholeCamera",
+    "PlaneReceiver",
+    "PointLight",
+    "precompute_spot_lights",
+    "project_caustic_map",
+    "ray_geo",
+    "read_exr",
+    "read_image",
+    "recover_sequence",
+    "recover_surface",
+    "RecoveryResult",
+    "reference_image",
+    "refine_axis",
+    "reflect",
+    "refract",
+    "relative_l2",
+    "render",
+    "render_batch",
+    "render_spot_lights",
+    "SequenceResult",
+    "shade_points",
+    "sine_sum",
+    "splat_photons",
+    "spot_lights",
+    "SpotLightRays",
+    "SpotLightResult",
+    "SpotLights",
+    "SpotLightTable",
+    "stack_scenes",
+    "trace_exit_rays",
+    "trace_photons",
+    "transport_map",
+    "TransportMap",
+    "triangle_window",
+    "triangles_image",
+    "TrianglesResult",
+    "two_pass",
+    "TwoPassResult",
+    "unstack_scenes",
+    "Verification",
+    "verify_lens",
+    "WaterScene",
+    "wave_heights",
+    "write_exr",
+    "write_png",
+    "write_png_linear16",
+]

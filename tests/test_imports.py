@@ -98,3 +98,14 @@ def test_the_walk_sees_the_package():
     graph = _imports()
     assert "jaxcaustics._render" in graph and "jaxcaustics.reference" in graph
     assert "jaxcaustics._methods.twopass" in graph["jaxcaustics._render"][0]
+
+
+def test_the_public_surface_is_all():
+    """Every name the package exports is in `__all__`, and every name there exists."""
+    import inspect
+
+    import jaxcaustics as jc
+
+    public = {n for n, v in vars(jc).items() if not n.startswith("_") and not inspect.ismodule(v)}
+    assert public == set(jc.__all__)
+    assert len(jc.__all__) == len(set(jc.__all__))
