@@ -184,7 +184,7 @@ def test_recover_surface_refuses(forbid, monkeypatch, change, name):
     def started(*args, **kwargs):
         raise AssertionError("the recovery started before the arguments were checked")
 
-    for work in ("transport_start", "_make_solver", "_adam", "auto_window", "_loss"):
+    for work in ("transport_start", "_make_solver", "auto_window", "_loss"):
         monkeypatch.setattr(recover, work, started)
     kwargs = {"target": CAUSTIC, **WATER, **change}
     refused(lambda: recover.recover_surface(**kwargs), name)

@@ -120,7 +120,7 @@ def test_each_solver_runs_and_reduces_the_loss(small_case, solver):
 
 
 def test_max_steps_reached_raises_with_throw(small_case):
-    # Adam's check is outside the compiled loop, so this reuses the test above's build.
+    # Optax's Adam through optimistix.OptaxMinimiser: Optimistix's error when it throws
     with pytest.raises(RuntimeError, match="max_steps"):
         solve(small_case[1], solver="adam", throw=True, **SMALL)
 
@@ -183,7 +183,6 @@ def test_bad_inputs_raise_before_any_optimisation(target, kwargs, name, monkeypa
         raise AssertionError("optimisation started before the inputs were checked")
 
     monkeypatch.setattr(recover, "_make_solver", fail)
-    monkeypatch.setattr(recover, "_adam", fail)
     monkeypatch.setattr(recover, "auto_window", fail)
     monkeypatch.setattr(recover, "_loss", fail)
     monkeypatch.setattr(recover, "transport_start", fail)

@@ -32,8 +32,8 @@ same thing at every scale.
 problem matrix-free: each (damped) Gauss-Newton step solves its normal equations by a
 truncated conjugate gradient (`lineax.Normal(lineax.CG(...))`, `cg_steps` iterations of
 one Jacobian-vector and one vector-Jacobian product each). ``"bfgs"`` minimises the sum
-of squares with `optimistix.BFGS`. ``"adam"`` is a plain Adam loop in JAX (Optax is not
-a dependency of this package).
+of squares with `optimistix.BFGS`, ``"adam"`` with Optax's Adam through
+`optimistix.OptaxMinimiser` (all four stop by Optimistix's Cauchy criterion).
 
 **Coarse to fine.** `coarse_to_fine` lists downsampling factors of the height grid,
 ending with 1: each level is solved on a grid ``ceil(shape / factor)``, and its solution,
@@ -58,10 +58,10 @@ from collections.abc import Callable, Sequence
 from typing import Any, Literal
 
 import equinox as eqx
-import jax
 import jax.numpy as jnp
 import lineax as lx
 import numpy as np
+import optax
 import optimistix as optx
 from jaxtyping import Array
 
@@ -257,45 +257,14 @@ def _loss(problem: _Problem, u: Array) -> Array:
     return _sum_squares(problem(u))
 
 
-@eqx.filter_jit
-def _adam(problem: _Problem, u0: Array, learning_rate: float, max_steps: int, rtol, atol):
-    """Adam (beta1 0.9, beta2 0.999) on the sum of squares, stopping like Optimistix's
-    Cauchy criterion: a step and a change of the loss both below ``atol + rtol |.|``."""
-    value_and_grad = jax.value_and_grad(lambda u: _sum_squares(problem(u)))
-    b1, b2, eps = 0.9, 0.999, 1e-12
-
-    def cond(carry):
-        step, _, _, _, _, done = carry
-        return (step < max_steps) & ~done
-
-    def body(carry):
-        step, u, m, v, prev_loss, _ = carry
-        loss, g = value_and_grad(u)
-        m = b1 * m + (1 - b1) * g
-        v = b2 * v + (1 - b2) * g * g
-        t = step + 1
-        m_hat = m / (1 - b1**t)
-        v_hat = v / (1 - b2**t)
-        delta = learning_rate * m_hat / (jnp.sqrt(v_hat) + eps)
-        small_step = jnp.max(jnp.abs(delta)) <= atol + rtol * jnp.max(jnp.abs(u))
-        small_change = jnp.abs(prev_loss - loss) <= atol + rtol * loss
-        return t, u - delta, m, v, loss, small_step & small_change
-
-    zero = jnp.zeros_like(u0)
-    init = (jnp.array(0), u0, zero, zero, jnp.array(jnp.inf, u0.dtype), jnp.array(False))
-    steps, u, _, _, _, done = jax.lax.while_loop(cond, body, init)
-    result = optx.RESULTS.where(
-        done, optx.RESULTS.successful, optx.RESULTS.nonlinear_max_steps_reached
-    )
-    return u, steps, result
-
-
-def _make_solver(name: str, rtol: float, atol: float, cg_steps: int):
+def _make_solver(name: str, rtol: float, atol: float, cg_steps: int, learning_rate: float):
     linear = lx.Normal(lx.CG(rtol=0.0, atol=0.0, max_steps=cg_steps))
     if name == "levenberg_marquardt":
         return optx.LevenbergMarquardt(rtol, atol, linear_solver=linear)
     if name == "gauss_newton":
         return optx.GaussNewton(rtol, atol, linear_solver=linear)
+    if name == "adam":
+        return optx.OptaxMinimiser(optax.adam(learning_rate), rtol, atol)
     return optx.BFGS(rtol, atol)
 
 
@@ -494,8 +463,8 @@ def recover_surface(
     **Returns:** a `RecoveryResult`.
 
     **Raises:** `ValueError`, naming the argument, for invalid inputs, before any
-    optimisation; with `throw`, Optimistix's runtime error (or `RuntimeError` for
-    Adam) when a level does not converge.
+    optimisation; with `throw`, Optimistix's runtime error when a level does not
+    converge.
     """
     # ---- validate everything before compiling anything
     ior = _check_ior(ior)
@@ -704,23 +673,14 @@ def recover_surface(
             blur=blur,
         )
         initial_loss = float(_loss(problem, u))
-        if solver == "adam":
-            u, steps, result = _adam(problem, u, learning_rate, max_steps, rtol, atol)
-            steps = int(steps)
-            if throw and not bool(result == optx.RESULTS.successful):
-                raise RuntimeError(
-                    f"Adam did not converge in max_steps={max_steps} steps at level {index}"
-                    f" {level_shape}: {optx.RESULTS[result]} (pass throw=False to accept)"
-                )
-        else:
-            sol = optx.least_squares(
-                problem,
-                _make_solver(solver, rtol, atol, cg_steps),
-                u,
-                max_steps=max_steps,
-                throw=throw,
-            )
-            u, steps, result = sol.value, int(sol.stats["num_steps"]), sol.result
+        sol = optx.least_squares(
+            problem,
+            _make_solver(solver, rtol, atol, cg_steps, learning_rate),
+            u,
+            max_steps=max_steps,
+            throw=throw,
+        )
+        u, steps, result = sol.value, int(sol.stats["num_steps"]), sol.result
         loss = float(_loss(problem, u))
         level = RecoveryLevel(
             level=index,
