@@ -26,6 +26,7 @@ from ._export import export_lens
 from ._inverse.checkpoint import run_rounds
 from ._inverse.design import _resample, default_levels, design_lens, transport_shape
 from ._inverse.sequence import frame_paths, load_frames, recover_sequence
+from ._inverse.solvers import SOLVER_NAMES
 from ._inverse.verify import verify_lens
 from ._io import check_folder, read_image, write_exr, write_png
 from ._scene import DirectionalLight, HeightField, PlaneReceiver, WaterScene
@@ -224,7 +225,7 @@ def add_design(subparsers) -> None:
     design.add_argument(
         "--solver",
         default="levenberg_marquardt",
-        choices=("levenberg_marquardt", "gauss_newton", "lbfgs"),
+        choices=SOLVER_NAMES,
         help="the Poisson start's solver",
     )
     design.add_argument(
@@ -480,7 +481,7 @@ def add_recover(subparsers) -> None:
     recover.add_argument(
         "--solver",
         default="none",
-        choices=("none", "levenberg_marquardt", "gauss_newton", "bfgs", "adam"),
+        choices=("none", *SOLVER_NAMES),
         help="image-space refinement after the transport start (none)",
     )
     recover.add_argument(

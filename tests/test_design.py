@@ -669,3 +669,14 @@ def test_a_heights_grid_too_large_for_the_machine_is_refused_before_any_work(mon
     design_module._check_design_memory((1024, 1024), 2, 0)  # 6.1 GiB: fine
     with pytest.raises(ValueError, match="GiB"):  # with the refinement's 4 GiB: not
         design_module._check_design_memory((1024, 1024), 2, design_module._REFINE_MEMORY)
+
+
+def test_a_minimiser_object_designs_on_the_half_sum_of_squares():
+    """An Optimistix minimiser given as `solver` gets ``0.5 * sum(residual^2)`` (as the
+    names "lbfgs", "bfgs" and "adam" do), and lowers it."""
+    import optimistix as optx
+
+    with pytest.warns(UserWarning, match="max_steps=5"):  # five steps do not converge
+        d = design_lens(blob(), **SPEC, **{**SMALL, "max_steps": 5}, solver=optx.BFGS(1e-6, 1e-9))
+    history = d.loss_history
+    assert len(history) >= 2 and history[-1] < history[0]

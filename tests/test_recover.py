@@ -217,3 +217,22 @@ def test_solver_comparison_table():
     print("\n" + recover.format_comparison(rows))
     lm = next(r for r in rows if r["solver"] == "levenberg_marquardt")
     assert lm["height_error"] < 5e-3
+
+
+def test_an_optimistix_solver_object_is_accepted_and_named(small_case):
+    """`solver` may be an Optimistix solver object (here Levenberg-Marquardt with its
+    default dense linear solve); the result names its class and reports the loss as
+    Optimistix does, ``0.5 * sum(residual^2)``."""
+    import optimistix as optx
+
+    r = solve(small_case[1], solver=optx.LevenbergMarquardt(1e-6, 1e-9), throw=False, **SMALL)
+    level = r.levels[-1]
+    assert r.solver == "LevenbergMarquardt" and level.steps == 3
+    assert np.isfinite(level.loss) and level.loss < level.initial_loss
+
+
+def test_a_solver_that_is_neither_a_name_nor_a_solver_is_refused():
+    with pytest.raises(ValueError, match="`solver` must be one of"):
+        solve(np.ones((16, 16)), solver="newton")
+    with pytest.raises(ValueError, match="`solver` must be one of"):
+        solve(np.ones((16, 16)), solver=object())

@@ -68,7 +68,6 @@ from typing import Any, Literal
 import equinox as eqx
 import jax
 import jax.numpy as jnp
-import lineax as lx
 import numpy as np
 import optimistix as optx
 
@@ -96,9 +95,9 @@ from .._transport import MAX_ITERATIONS, MAX_PIXELS, transport_map
 from .._transport import neumann_poisson as _neumann_poisson
 from .recover import MAX_CG_STEPS, check_irradiance, resample_heights
 from .recover import _laplacian as _five_point
+from .solvers import SolverLike, check_solver, half_squares, is_minimiser, make_solver
 from .water_start import safe_log_area as _safe_log_area
 
-SOLVERS = ("levenberg_marquardt", "gauss_newton", "lbfgs")
 # the transport start's surface boundary (`HeightField`): its edge slope continues to the
 # rim; "clamp" levels it off over the outermost half sample, whose light then lands near
 # the screen's edge (measured on twelve dots at 512^2 heights: the outermost ring of
@@ -1054,17 +1053,13 @@ def _transport_residual(u, problem: _Problem):
 
 def _half_squares(u, problem: _Problem):
     """The least-squares loss ``0.5 * sum(residual^2)`` (for the minimisers)."""
-    r = problem.transport_residual(u)
-    return 0.5 * sum(jnp.sum(c**2) for c in jax.tree_util.tree_leaves(r))
+    return half_squares(problem.transport_residual(u))
 
 
-def _make_solver(name: str, cg_steps: int, rtol: float):
-    if name == "lbfgs":
-        return optx.LBFGS(rtol=rtol, atol=1e-9)
-    linear = lx.Normal(lx.CG(rtol=1e-3, atol=1e-8, max_steps=cg_steps))
-    if name == "gauss_newton":
-        return optx.GaussNewton(rtol=rtol, atol=1e-9, linear_solver=linear)
-    return optx.LevenbergMarquardt(rtol=rtol, atol=1e-9, linear_solver=linear)
+def _make_solver(solver, cg_steps: int, rtol: float):
+    """The built solver and the objective it takes (the residual, or its loss)."""
+    built = make_solver(solver, rtol=rtol, atol=1e-9, cg_steps=cg_steps, cg_rtol=1e-3, cg_atol=1e-8)
+    return built, (_half_squares if is_minimiser(built) else _transport_residual)
 
 
 class _WithAux(eqx.Module):
@@ -1171,7 +1166,7 @@ def design_lens(
     screen_extent: Sequence[float] | None = None,
     levels: Sequence[int] | None = None,
     max_steps: int = 40,
-    solver: Literal["levenberg_marquardt", "gauss_newton", "lbfgs"] = "levenberg_marquardt",
+    solver: SolverLike = "levenberg_marquardt",
     oversample: int = 1,
     floor: float | None = None,
     boundary_weight: float = 1.0,
@@ -1223,8 +1218,10 @@ def design_lens(
       most 512 (`transport_shape`).
     - `max_steps`: solver steps per level (the landing fit's steps).
     - `solver`: ``"levenberg_marquardt"`` or ``"gauss_newton"`` (least squares, both
-      with Lineax `NormalCG`, matrix-free, `cg_steps` iterations at most), or
-      ``"lbfgs"`` (Optimistix's limited-memory BFGS on ``0.5 * sum(residual^2)``);
+      with Lineax `NormalCG`, matrix-free, `cg_steps` iterations at most), a minimiser
+      on ``0.5 * sum(residual^2)``: ``"lbfgs"``, ``"bfgs"`` or ``"adam"`` (Optax's,
+      through `optimistix.OptaxMinimiser`), or an Optimistix solver object (the same
+      names and rules as `recover_surface`: `jaxcaustics._inverse.solvers`);
       the Poisson start's.
     - `transport_iterations`: back-and-forth iterations of the transport at most.
     - `refine_steps`: the transport start's finish, for targets with dark regions
@@ -1307,8 +1304,7 @@ def design_lens(
         return _finish(setup, h, history, level_reports, result, t_start)
     level_reports: list[dict[str, Any]] = []
     result = optx.RESULTS.successful
-    sol = _make_solver(setup.solver, setup.cg_steps, setup.rtol)
-    objective = _half_squares if setup.solver == "lbfgs" else _transport_residual
+    sol, objective = _make_solver(setup.solver, setup.cg_steps, setup.rtol)
     h = None
     for k, shape in enumerate(setup.shapes):
         u, problem = _level_problem(setup, k, h)
@@ -1355,7 +1351,7 @@ class _Setup:
     vertical: bool
     weak: float
     max_steps: int
-    solver: str
+    solver: SolverLike
     oversample: int
     boundary_weight: float
     regularization: float
@@ -1469,8 +1465,7 @@ def _prepare(
     m = _check_mask(mask, t.shape)
     if not np.any(t[m] > 0):
         raise ValueError("`target` is zero everywhere inside `mask`: there is no light to place")
-    if solver not in SOLVERS:
-        raise ValueError(f"`solver` must be one of {SOLVERS}, got {solver!r}")
+    solver = check_solver(solver)
     levels_given = levels is not None
     if levels is None:
         levels = default_levels(t.shape)
@@ -1881,8 +1876,7 @@ def design_lens_variants(
         except ValueError as err:
             raise ValueError(f"throws[{i}] = {throw}: {err}") from err
     first = setups[0]
-    sol = _make_solver(first.solver, first.cg_steps, first.rtol)
-    objective = _half_squares if first.solver == "lbfgs" else _transport_residual
+    sol, objective = _make_solver(first.solver, first.cg_steps, first.rtol)
     max_steps = first.max_steps
 
     solve = _LevelSolve(objective, sol, max_steps)

@@ -59,9 +59,7 @@ from typing import Any, Literal
 
 import equinox as eqx
 import jax.numpy as jnp
-import lineax as lx
 import numpy as np
-import optax
 import optimistix as optx
 from jaxtyping import Array
 
@@ -81,11 +79,18 @@ from .._scene import (
 from .._surface import height_and_gradient
 from .._transport import MAX_PIXELS
 from .camera import camera_blur, deconvolve
+from .solvers import (
+    SOLVER_NAMES,
+    SolverLike,
+    check_solver,
+    half_squares,
+    make_solver,
+    solver_name,
+)
 from .water_refine import FOLD_BLURS, refine_folds
 from .water_start import flat_shift, transport_start
-from .water_start import sum_squares as _sum_squares
 
-SOLVERS = ("levenberg_marquardt", "gauss_newton", "bfgs", "adam")
+SOLVERS = SOLVER_NAMES  # (the names `compare_solvers` runs by default)
 WINDOW_MARGIN = 1  # pixels added on each side of the automatic window
 MIN_WINDOW = (5, 4)  # the smallest automatic window
 # the transport start's irradiance misfit above which it warns (RMS of log irradiance
@@ -99,7 +104,7 @@ RESULT_WINDOW_MARGIN = 0.5
 RESULT_MISSED_FLUX = 1e-3
 INITIAL_RIPPLE = 0.05  # scaled units: the random ripple of the default initial guess
 
-Solver = Literal["levenberg_marquardt", "gauss_newton", "bfgs", "adam"]
+Solver = Literal["levenberg_marquardt", "gauss_newton", "bfgs", "lbfgs", "adam"]
 
 
 # ------------------------------------------------------------------ results
@@ -113,7 +118,8 @@ class RecoveryLevel:
     - `shape`: ``(rows, cols)`` of the height grid solved for.
     - `heights`: the level's solution, metres (as solved: mean not removed).
     - `initial_loss`: the objective at the level's initial guess.
-    - `loss`: the objective (sum of squares of the residuals) at the solution.
+    - `loss`: the objective (``0.5 * sum(residual^2)``, Optimistix's, as `design_lens`
+      reports) at the solution.
     - `steps`: the solver's number of steps.
     - `result`: the `optimistix.RESULTS` code (``optimistix.RESULTS.successful`` or why
       not).
@@ -254,18 +260,11 @@ class _Problem(eqx.Module):
 
 @eqx.filter_jit
 def _loss(problem: _Problem, u: Array) -> Array:
-    return _sum_squares(problem(u))
+    return half_squares(problem(u))
 
 
-def _make_solver(name: str, rtol: float, atol: float, cg_steps: int, learning_rate: float):
-    linear = lx.Normal(lx.CG(rtol=0.0, atol=0.0, max_steps=cg_steps))
-    if name == "levenberg_marquardt":
-        return optx.LevenbergMarquardt(rtol, atol, linear_solver=linear)
-    if name == "gauss_newton":
-        return optx.GaussNewton(rtol, atol, linear_solver=linear)
-    if name == "adam":
-        return optx.OptaxMinimiser(optax.adam(learning_rate), rtol, atol)
-    return optx.BFGS(rtol, atol)
+def _make_solver(solver, rtol: float, atol: float, cg_steps: int, learning_rate: float):
+    return make_solver(solver, rtol=rtol, atol=atol, cg_steps=cg_steps, learning_rate=learning_rate)
 
 
 def _grid(extent: np.ndarray, shape: tuple[int, int], dtype) -> tuple[Array, Array]:
@@ -385,7 +384,7 @@ def recover_surface(
     receiver_extent=None,
     boundary: str = "periodic",
     start: Literal["auto", "transport", "ripple"] = "auto",
-    solver: Solver | None = None,
+    solver: Solver | SolverLike | None = None,
     smoothness: float = 1e-3,
     coarse_to_fine: Sequence[int] = (1,),
     max_steps: int = 100,
@@ -426,10 +425,12 @@ def recover_surface(
       With an `initial`, the transport start is warm: its irradiance fit alone, from
       `initial` (a sequence's previous frame; `recover_sequence`); the ripple start
       is replaced by `initial`.
-    - `solver`: the image-space solve after the start: ``"levenberg_marquardt"``,
-      ``"gauss_newton"``, ``"bfgs"`` or ``"adam"`` on the two-pass caustic (the options
-      below); None (default): none after the transport start, Levenberg-Marquardt after
-      the ripple start.
+    - `solver`: the image-space solve after the start, on the two-pass caustic (the
+      options below): ``"levenberg_marquardt"``, ``"gauss_newton"``, ``"bfgs"``,
+      ``"lbfgs"``, ``"adam"`` or an Optimistix least-squares solver or minimiser object
+      (`jaxcaustics._inverse.solvers`; a minimiser gets ``0.5 * sum(residual^2)``);
+      None (default): none after the transport start, Levenberg-Marquardt after the
+      ripple start.
     - `smoothness`: weight of the Laplacian prior (dimensionless, see the module).
     - `coarse_to_fine`: strictly decreasing downsampling factors of the height grid,
       ending with 1, e.g. ``(4, 2, 1)``; ``(1,)`` solves on the full grid only.
@@ -513,8 +514,8 @@ def recover_surface(
         start = "transport" if covers else "ripple"
     if solver is None and start == "ripple":
         solver = "levenberg_marquardt"
-    if solver is not None and solver not in SOLVERS:
-        raise ValueError(f"`solver` must be one of {SOLVERS} or None, got {solver!r}")
+    if solver is not None:
+        solver = check_solver(solver)
     smoothness = check_number(smoothness, "smoothness", low=0.0)
     level_shapes = _levels(coarse_to_fine, shape)
     max_steps = check_int(max_steps, "max_steps", 1)
@@ -724,7 +725,7 @@ def recover_surface(
         image_error=float(np.linalg.norm(misfit) / max(contrast, 1e-300)),
         missed_flux_fraction=np.asarray(rendered.missed_flux_fraction),
         levels=tuple(levels),
-        solver=solver or "none",
+        solver="none" if solver is None else solver_name(solver),
         time_s=time.perf_counter() - started,
         scene=scene,
         stages=tuple(stages),
