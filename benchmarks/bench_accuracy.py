@@ -50,7 +50,6 @@ from pathlib import Path
 
 import jax
 import numpy as np
-from scipy.ndimage import gaussian_filter
 
 import jaxcaustics as jc
 from jaxcaustics import reference
@@ -286,16 +285,6 @@ def scene_for_row(scene, row: dict):
 # --------------------------------------------------------------------------- measures
 
 
-def rel_l1(image, ref, blur_px=BLUR_PX) -> float:
-    """``sum |blur(image) - blur(ref)| / sum blur(ref)`` (Gaussian of `blur_px` pixels,
-    zero outside the receiver); a multi-channel image is compared channel by channel."""
-    a, b = np.asarray(image, float), np.asarray(ref, float)
-    sigma = (blur_px, blur_px) + (0,) * (a.ndim - 2)
-    a = gaussian_filter(a, sigma, mode="constant")
-    b = gaussian_filter(b, sigma, mode="constant")
-    return float(np.abs(a - b).sum() / np.abs(b).sum())
-
-
 def load() -> list[float]:
     return [round(x, 2) for x in os.getloadavg()]
 
@@ -371,7 +360,7 @@ def measure_row(scene, truth, method, knobs, as_mesh, config) -> dict:
         config["budget_s"],
     )
     row.update(
-        error=rel_l1(image, truth),
+        error=jc.image_error(image, truth),
         missed_flux=float(np.max(np.asarray(stats["missed_flux_fraction"]))),
         time_s=median,
         compile_s=max(first - median, 0.0),
@@ -403,7 +392,7 @@ def table_row(scene, truth, settings, config) -> dict:
         method="spot_lights",
         knobs={},
         as_mesh=None,
-        error=rel_l1(image, truth),
+        error=jc.image_error(image, truth),
         time_s=median,
         compile_s=max(first - median, 0.0),
         choosable=False,
@@ -450,7 +439,7 @@ def run_kind(kind: str, config: dict, log=print) -> dict:
             dict(
                 function=function,
                 knobs={"photons_per_axis": p},
-                error=rel_l1(image, truth),
+                error=jc.image_error(image, truth),
                 time_s=took,
             )
         )

@@ -41,6 +41,7 @@ in an HTML comment at its end) and ``caustic_maps_error_vs_time.png``.
 from __future__ import annotations
 
 import argparse
+import functools
 import inspect
 import json
 import math
@@ -55,6 +56,9 @@ import numpy as np
 
 import jaxcaustics as jc
 from jaxcaustics import reference
+
+# relative L1 without a blur (jc.image_error at blur 0)
+unblurred_error = functools.partial(jc.image_error, blur=0.0)
 
 RESULTS = Path(__file__).parent / "results"
 MD_NAME = "caustic_maps.md"
@@ -156,12 +160,6 @@ SCENES = {
 # ---------------------------------------------------------------------------- measures
 
 
-def rel_l1(image, ref) -> float:
-    """Relative L1 error, no blur."""
-    a, b = np.asarray(image, float), np.asarray(ref, float)
-    return float(np.abs(a - b).sum() / np.abs(b).sum())
-
-
 def run_once(fn):
     start = time.perf_counter()
     result = fn()
@@ -216,7 +214,14 @@ def reference_rows(scene, truth_p, checks):
         took = time.perf_counter() - start
         rows.append(
             _row(
-                REFERENCE, p, rel_l1(image, truth), took, took, 1, st["emitted"], st["on_receiver"]
+                REFERENCE,
+                p,
+                unblurred_error(image, truth),
+                took,
+                took,
+                1,
+                st["emitted"],
+                st["on_receiver"],
             )
         )
         print("  ", rows[-1], flush=True)
@@ -235,7 +240,7 @@ def dense_rows(scene, truth, grids, map_resolution, repeats):
         def attempt(f, n=n, tried=tried):
             sigma = f * map_resolution / n
             first, result = run_once(lambda: jc.caustics_mapping(scene, photons=n, sigma=sigma))
-            tried[f] = (rel_l1(result.image, truth), first, result)
+            tried[f] = (unblurred_error(result.image, truth), first, result)
 
         for f in SIGMA_FACTORS:
             attempt(f)
@@ -284,7 +289,7 @@ def dense_exact_rows(scene, truth, grids, sigmas, repeats):
             _row(
                 DENSE_EXACT,
                 n,
-                rel_l1(result.image, truth),
+                unblurred_error(result.image, truth),
                 first,
                 median,
                 runs,
@@ -315,7 +320,7 @@ def adaptive_rows(scene, truth, grids, metric, check_from, sigmas, repeats):
             _row(
                 ADAPTIVE[metric],
                 n,
-                rel_l1(result.image, truth),
+                unblurred_error(result.image, truth),
                 first,
                 median,
                 runs,
@@ -344,7 +349,7 @@ def triangle_rows(scene, truth, grids, repeats):
             _row(
                 TRIANGLES,
                 n,
-                rel_l1(result.image, truth),
+                unblurred_error(result.image, truth),
                 first,
                 median,
                 runs,

@@ -136,17 +136,6 @@ def sphere_scene(shape=(128, 128), extent=EXTENT, dtype=np.float32):
     )
 
 
-def rel_l1(image, ref, blur_px=BLUR_PX) -> float:
-    """``sum |blur(image) - blur(ref)| / sum blur(ref)``; `blur_px` 0: no blur."""
-    from scipy.ndimage import gaussian_filter
-
-    a, b = np.asarray(image, float), np.asarray(ref, float)
-    if blur_px:
-        a = gaussian_filter(a, blur_px, mode="constant")
-        b = gaussian_filter(b, blur_px, mode="constant")
-    return float(np.abs(a - b).sum() / np.abs(b).sum())
-
-
 # ---------------------------------------------------------------------------- timing
 
 
@@ -296,8 +285,8 @@ def part_error(config):
         truth_s=truth_s,
         check=config["ref_check"],
         check_s=check_s,
-        check_error=rel_l1(check, truth),
-        check_error_raw=rel_l1(check, truth, 0),
+        check_error=jc.image_error(check, truth),
+        check_error_raw=jc.image_error(check, truth, 0),
     )
     print("  reference", ref, flush=True)
     n = config["error_rays"]
@@ -326,8 +315,8 @@ def part_error(config):
             lights=int(result.stats["lights"][0]),
             fraction=float(info.fraction),
             discarded=float(info.discarded_energy / info.total_energy),
-            error=rel_l1(result.image, truth),
-            error_raw=rel_l1(result.image, truth, 0),
+            error=jc.image_error(result.image, truth),
+            error_raw=jc.image_error(result.image, truth, 0),
             fit_ms=1e3 * fit_median,
             fit_compile_s=fit_first - fit_median,
             fit_runs=fit_runs,

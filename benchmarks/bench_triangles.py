@@ -36,7 +36,6 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
-from scipy.ndimage import gaussian_filter
 
 import jaxcaustics as jc
 from jaxcaustics import reference
@@ -45,14 +44,6 @@ from jaxcaustics._methods.triangles import splat_photons, trace_photons, triangl
 RESULTS = Path(__file__).parent / "results"
 APERTURE = (0.0, 0.1, 0.0, 0.1)  # a 10 cm square lens
 SIGMAS = (0.1, 0.15, 0.2, 0.3, 0.4, 0.5, 0.7, 1.0, 1.5, 2.0, 3.0)  # splat radii, pixels
-
-
-def rel_l1(image, ref, sigma=1.0) -> float:
-    """Relative L1 error after a Gaussian blur of `sigma` pixels (zero outside the
-    screen; ``sigma = 0``: no blur), as in ``tests/test_triangles_reference.py``."""
-    a = gaussian_filter(np.asarray(image, float), sigma, mode="constant")
-    b = gaussian_filter(np.asarray(ref, float), sigma, mode="constant")
-    return float(np.abs(a - b).sum() / np.abs(b).sum())
 
 
 def timed(fn, *args, repeats=7, budget_s=10.0) -> tuple[float, float]:
@@ -135,8 +126,8 @@ def triangle_rows(scene, truth, grids, weights, repeats, reconstruction, supersa
         row = dict(
             photons=n,
             window=window,
-            error=rel_l1(image, truth, sigma=0.0),
-            error_blur=rel_l1(image, truth),
+            error=jc.image_error(image, truth, blur=0.0),
+            error_blur=jc.image_error(image, truth),
             missed=float(missed[0]),
             **timings,
         )
@@ -152,7 +143,7 @@ def best_sigma(photons, receiver, truth):
     found = []
     for sigma in SIGMAS:
         image = np.asarray(splat_photons(photons, receiver, sigma)[0])
-        found.append((sigma, rel_l1(image, truth, sigma=0.0), rel_l1(image, truth)))
+        found.append((sigma, jc.image_error(image, truth, blur=0.0), jc.image_error(image, truth)))
         rising = [len(found) >= 3 and found[-1][k] > found[-2][k] > found[-3][k] for k in (1, 2)]
         if all(rising):
             break
@@ -199,8 +190,8 @@ def reference_rows(scene, counts, truth_p):
         rows.append(
             dict(
                 photons=p,
-                error=rel_l1(image, truth, sigma=0.0),
-                error_blur=rel_l1(image, truth),
+                error=jc.image_error(image, truth, blur=0.0),
+                error_blur=jc.image_error(image, truth),
                 fwd_ms=1e3 * (time.perf_counter() - start),
             )
         )

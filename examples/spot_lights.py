@@ -20,7 +20,6 @@ import jax  # noqa: E402
 import jax.numpy as jnp  # noqa: E402
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
-from scipy.ndimage import gaussian_filter  # noqa: E402
 
 import jaxcaustics as jc  # noqa: E402
 from jaxcaustics import reference  # noqa: E402
@@ -55,14 +54,8 @@ ref = reference.trace_ellipsoid(scene, 2048)
 ref_time = time.perf_counter() - start
 
 
-def relative_l1(image, truth, blur=1.0):
-    a = gaussian_filter(np.asarray(image, float), blur, mode="constant")
-    b = gaussian_filter(np.asarray(truth, float), blur, mode="constant")
-    return float(np.abs(a - b).sum() / b.sum())
-
-
 print(f"reference (2048^2 photons): {ref_time:.1f} s")
-print(f"error against the reference (1-px blur): {relative_l1(result.image, ref):.3f}")
+print(f"error against the reference (1-px blur): {jc.image_error(result.image, ref):.3f}")
 
 # the same lights with the occluder (an analytic shadow test per ray) and a glossy floor
 with_shadow = jc.spot_lights(shadowed, lights=lights).image
@@ -80,7 +73,7 @@ frame_lights = jc.interpolate_spot_lights(table, moving.unit_direction)
 frame_scene = jc.EllipsoidScene(ball, moving, receiver, ior=1.5)
 frame = jc.spot_lights(frame_scene, lights=frame_lights).image
 frame_ref = reference.trace_ellipsoid(frame_scene, 1024)
-print(f"interpolated frame, error against the reference: {relative_l1(frame, frame_ref):.3f}")
+print(f"interpolated frame, error against the reference: {jc.image_error(frame, frame_ref):.3f}")
 
 panels = [
     ("reference", ref),

@@ -100,13 +100,15 @@ class Choice:
         )
 
 
-def image_error(image, reference, blur: float = 1.0) -> float:
-    """The accuracy tables' error: ``sum |g(image) - g(reference)| / sum g(reference)``,
-    relative L1 after a Gaussian blur ``g`` of `blur` pixels (standard deviation; zero
-    outside the image) of both images.
+def image_error(image, reference, blur: float = 1.0, boundary: str = "constant") -> float:
+    """The accuracy tables' error: ``sum |g(image) - g(reference)| / sum |g(reference)|``,
+    relative L1 after a Gaussian blur ``g`` of `blur` pixels (standard deviation) of
+    both images. The one image error of the library, its tests, benchmarks and figures.
 
     **Arguments:** `image`, `reference`: arrays of the same shape ``(rows, cols)`` or
-    ``(rows, cols, channels)`` (channels are blurred separately); `blur` >= 0, pixels.
+    ``(rows, cols, channels)`` (channels are blurred separately); `blur` >= 0, pixels
+    (0: no blur); `boundary`: beyond the image, ``"constant"`` (zero: a receiver with
+    nothing around it) or ``"periodic"`` (the image wraps: a periodic sea's caustic).
     """
     from scipy.ndimage import gaussian_filter
 
@@ -121,9 +123,12 @@ def image_error(image, reference, blur: float = 1.0) -> float:
         if not np.all(np.isfinite(array)):
             raise ValueError(f"`{name}` contains NaN or infinite values")
     blur = check_number(blur, "blur", low=0.0)
+    mode = {"constant": "constant", "periodic": "wrap"}[
+        check_choice(boundary, "boundary", ("constant", "periodic"))
+    ]
     sigma = (blur, blur, 0.0)[: a.ndim]
-    ga = gaussian_filter(a, sigma, mode="constant")
-    gb = gaussian_filter(b, sigma, mode="constant")
+    ga = gaussian_filter(a, sigma, mode=mode)
+    gb = gaussian_filter(b, sigma, mode=mode)
     total = np.abs(gb).sum()
     if not total > 0:
         raise ValueError("`reference` is black: the relative error is undefined")

@@ -98,12 +98,6 @@ def blur(image, sigma: float = BLUR) -> np.ndarray:
     return gaussian_filter(image, sigma, mode="constant") if sigma > 0 else image
 
 
-def rel_l1(image, ref, sigma: float = BLUR) -> float:
-    """``sum |blur(image) - blur(ref)| / sum blur(ref)``."""
-    a, b = blur(image, sigma), blur(ref, sigma)
-    return float(np.abs(a - b).sum() / b.sum())
-
-
 def run(quick: bool = False, height: float = HEIGHT, size: float = SIZE) -> tuple[dict, dict]:
     settings = dict(QUICK if quick else FULL, height=height, size=size)
     scene = sphere_scene(settings["pixels"], height, size)
@@ -129,11 +123,11 @@ def run(quick: bool = False, height: float = HEIGHT, size: float = SIZE) -> tupl
         settings=settings,
         lights=int(fitted.stats["lights"][0]),
         missed_flux_fraction=float(fitted.missed_flux_fraction[0]),
-        error_corrected=rel_l1(corrected, truth),
-        error_uncorrected=rel_l1(plain, truth),
-        error_corrected_unblurred=rel_l1(corrected, truth, 0.0),
-        error_uncorrected_unblurred=rel_l1(plain, truth, 0.0),
-        error_reference_half=rel_l1(coarse, truth),
+        error_corrected=jc.image_error(corrected, truth),
+        error_uncorrected=jc.image_error(plain, truth),
+        error_corrected_unblurred=jc.image_error(corrected, truth, 0.0),
+        error_uncorrected_unblurred=jc.image_error(plain, truth, 0.0),
+        error_reference_half=jc.image_error(coarse, truth),
         flux_corrected=float(corrected.sum() / truth.sum()),
         flux_uncorrected=float(plain.sum() / truth.sum()),
         reference_seconds=ref_s,

@@ -65,7 +65,6 @@ import matplotlib.pyplot as plt  # noqa: E402
 import matplotlib.ticker as mticker  # noqa: E402
 import numpy as np  # noqa: E402
 import trimesh  # noqa: E402
-from scipy.ndimage import gaussian_filter  # noqa: E402
 
 import jaxcaustics as jc  # noqa: E402
 from jaxcaustics import reference  # noqa: E402
@@ -108,17 +107,6 @@ def torus_scene(sections=FULL["sections"], pixels=FULL["pixels"]) -> jc.MeshScen
         ior=IOR,
         interfaces=INTERFACES,
     )
-
-
-def rel_l1(image, ref, blur: float = BLUR) -> float:
-    """Relative L1 error after a Gaussian blur of `blur` pixels (zero outside the
-    screen; 0: no blur)."""
-    a = np.asarray(image, float)
-    b = np.asarray(ref, float)
-    if blur > 0:
-        a = gaussian_filter(a, blur, mode="constant")
-        b = gaussian_filter(b, blur, mode="constant")
-    return float(np.abs(a - b).sum() / np.abs(b).sum())
 
 
 def hit_location_image(photons: jc.Photons, extent) -> np.ndarray:
@@ -199,7 +187,10 @@ def main(argv=None) -> int:
     start = time.perf_counter()
     sigmas = QUICK_SIGMAS if args.quick else SIGMAS
     splats = {s: np.asarray(splat_photons(photons, scene.receiver, s)[0]) for s in sigmas}
-    sweep = {s: (rel_l1(img, truth), rel_l1(img, truth, 0.0)) for s, img in splats.items()}
+    sweep = {
+        s: (jc.image_error(img, truth), jc.image_error(img, truth, 0.0))
+        for s, img in splats.items()
+    }
     best = min(range(len(sigmas)), key=lambda k: sweep[sigmas[k]][0])
     step = 3 if args.quick else 6  # a factor of about 4
     tuned = sigmas[best]
@@ -216,8 +207,8 @@ def main(argv=None) -> int:
         dict(
             method=method,
             sigma=sigma,
-            rel_l1=rel_l1(image, truth),
-            rel_l1_unblurred=rel_l1(image, truth, 0.0),
+            rel_l1=jc.image_error(image, truth),
+            rel_l1_unblurred=jc.image_error(image, truth, 0.0),
         )
         for method, sigma, image in rows
     ]

@@ -22,8 +22,9 @@ For every row the script renders it also gives: photons generated (shaded; adapt
 all levels), photons splatted, kernel calls (batches), the largest photon buffer of one
 call, the time of the call (wall clock, first call: jit compilation included, see
 ``--repeat``) and the relative L1 error of the receiver image against the ground truth,
-``sum |blur(img) - blur(ref)| / sum blur(ref)``, both images blurred with the same
-Gaussian of ``--blur`` pixels (default 1; zero outside the receiver), the reference being
+``sum |blur(img) - blur(ref)| / sum blur(ref)`` (`jaxcaustics.image_error`), both images
+blurred with the same Gaussian of ``--blur`` pixels (default 1; zero outside the
+receiver), the reference being
 `jaxcaustics.reference.trace_mesh` (NumPy, float64, exact photon tracing with up to
 4 interfaces) with ``--reference`` photons per axis over the object's projection.
 
@@ -167,26 +168,6 @@ def make_scene(name: str, settings: dict) -> jc.MeshScene:
     raise ValueError(f"unknown scene {name!r}")
 
 
-def gaussian_blur(image, sigma: float) -> np.ndarray:
-    """Separable Gaussian blur of `sigma` pixels (kernel cut at 4 sigma, normalised;
-    zero outside the image); ``sigma = 0``: a copy."""
-    image = np.array(image, dtype=np.float64)
-    if sigma <= 0:
-        return image
-    radius = max(1, int(math.ceil(4.0 * sigma)))
-    x = np.arange(-radius, radius + 1, dtype=np.float64)
-    kernel = np.exp(-0.5 * (x / sigma) ** 2)
-    kernel /= kernel.sum()
-    rows = np.apply_along_axis(np.convolve, 0, image, kernel, mode="same")
-    return np.apply_along_axis(np.convolve, 1, rows, kernel, mode="same")
-
-
-def rel_l1(image, ref, blur: float = BLUR) -> float:
-    """``sum |blur(image) - blur(ref)| / sum |blur(ref)|``."""
-    a, b = gaussian_blur(image, blur), gaussian_blur(ref, blur)
-    return float(np.abs(a - b).sum() / np.abs(b).sum())
-
-
 def _timed(render, repeat: int, warm_below: float):
     """Run `render` (returning a `CausticMapResult`): the last result, its image and
     the time, and whether that time includes jit compilation. ``repeat > 1``: the
@@ -227,8 +208,8 @@ def _row(method: str, n: int, timed, truth, blur: float) -> dict:
         peak_buffer_bytes=int(stats["peak_buffer_bytes"]),
         seconds=seconds,
         compile_included=compiled,
-        rel_l1=rel_l1(image, truth, blur),
-        rel_l1_unblurred=rel_l1(image, truth, 0.0),
+        rel_l1=jc.image_error(image, truth, blur),
+        rel_l1_unblurred=jc.image_error(image, truth, 0.0),
         flux_ratio=float(image.sum() / truth.sum()),
         missed_flux_fraction=float(np.asarray(result.missed_flux_fraction).ravel()[0]),
         rendered=True,

@@ -37,11 +37,6 @@ def blur(image, sigma=1.0):
     return gaussian(np.asarray(image, np.float64), sigma=sigma, mode="constant")
 
 
-def rel_l1(image, ref, sigma=1.0):
-    a, b = blur(image, sigma), blur(ref, sigma)
-    return float(np.abs(a - b).sum() / b.sum())
-
-
 @pytest.fixture(scope="module")
 def ball():
     return ball_scene()
@@ -62,7 +57,7 @@ def test_splatted_maps_converge_to_the_reference(ball, ball_reference):
     error, 768^2 against 1536^2 photons, is 6e-4). Measured with the exact intersection:
     0.19, 0.090, 0.034 for 64, 128, 256 photons per side of the light's view."""
     errors = [
-        rel_l1(
+        jc.image_error(
             jc.caustics_mapping(ball, photons=n, map_resolution=128, intersection="exact").image,
             ball_reference,
         )
@@ -99,7 +94,7 @@ def test_image_space_caustic_against_the_reference(ball, ball_reference):
     from photons near the ball's rim, where the rayGeo update contracts slowly (their
     landing points are off by 0.18 m median after 4 iterations, 0.004 m after 32)."""
     image = jc.caustics_mapping(ball, photons=256, map_resolution=128, iterations=4).image
-    assert rel_l1(image, ball_reference) < 0.11
+    assert jc.image_error(image, ball_reference) < 0.11
 
 
 def test_adaptive_traversal_equals_the_dense_map(ball):

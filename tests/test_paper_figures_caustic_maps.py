@@ -78,20 +78,13 @@ def test_table1_adaptive_quick(tmp_path, capsys):
     assert "Table 1" in out and str(tmp_path / "table1_adaptive.md") in out
 
 
-def test_scenes_and_blur():
+def test_scenes_lie_above_the_receiver():
     module = _load()
     # both generators are closed and lie above the receiver (checked in `_scene`)
     for name in module.SCENES:
         scene = module.make_scene(name, module.QUICK)
         assert float(np.asarray(scene.generator.vertices)[:, 2].min()) > 0.0
-    # the blur conserves the sum away from the border and leaves a constant alone
-    image = np.zeros((21, 21))
-    image[10, 10] = 1.0
-    blurred = module.gaussian_blur(image, 1.0)
-    assert blurred.sum() == pytest.approx(1.0)
-    assert blurred[10, 10] == pytest.approx(1.0 / (2 * np.pi), rel=0.05)
-    assert module.rel_l1(image, image) == 0.0
-    assert module.rel_l1(2 * image, image) == pytest.approx(1.0)
+    # (its error is `jc.image_error`, tested with the library)
 
 
 def test_help(capsys):

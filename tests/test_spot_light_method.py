@@ -3,7 +3,6 @@
 import jax.numpy as jnp
 import numpy as np
 import pytest
-from scipy.ndimage import gaussian_filter
 
 import jaxcaustics as jc
 from jaxcaustics import reference
@@ -18,14 +17,6 @@ def sphere_scene(zenith=20.0, azimuth=0.0, shape=(48, 48), occluders=()):
         ior=1.5,
         occluders=occluders,
     )
-
-
-def relative_l1(image, ref, blur_px=1.0):
-    """``sum |blur(image) - blur(ref)| / sum blur(ref)``, Gaussian blur of `blur_px`
-    pixels (zero outside the receiver)."""
-    a = gaussian_filter(np.asarray(image, float), blur_px, mode="constant")
-    b = gaussian_filter(np.asarray(ref, float), blur_px, mode="constant")
-    return float(np.abs(a - b).sum() / b.sum())
 
 
 def test_render_dispatches_and_checks_the_scene():
@@ -67,7 +58,7 @@ def test_sphere_caustic_agrees_with_the_reference_at_a_fitted_direction():
     scene = sphere_scene()
     result = jc.spot_lights(scene, rays_per_axis=128, max_lights=8)
     ref = reference.trace_ellipsoid(scene, 1024)
-    error = relative_l1(result.image, ref)
+    error = jc.image_error(result.image, ref)
     assert error < 0.08, error
     assert float(result.missed_flux_fraction[0]) <= 0.05 + 1e-9
 
@@ -100,7 +91,7 @@ def test_sphere_caustic_from_interpolated_lights_agrees_with_the_reference():
         image = jc.spot_lights(lit, lights=lights).image
         ref = reference.trace_ellipsoid(lit, 1024)
         direct = jc.spot_lights(lit, rays_per_axis=64, max_lights=4).image
-        error, direct_error = relative_l1(image, ref), relative_l1(direct, ref)
+        error, direct_error = jc.image_error(image, ref), jc.image_error(direct, ref)
         assert error < 0.08, (direction, error)
         assert error < direct_error + 0.02, (direction, error, direct_error)
 
@@ -123,5 +114,5 @@ def test_mesh_made_with_trimesh_against_the_mesh_reference():
     )
     result = jc.spot_lights(scene, rays_per_axis=48, max_lights=4)
     ref = reference.trace_mesh(scene, 512)
-    error = relative_l1(result.image, ref)
+    error = jc.image_error(result.image, ref)
     assert error < 0.1, error
