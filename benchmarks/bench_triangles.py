@@ -28,7 +28,7 @@ Writes ``benchmarks/results/triangles.md`` (tables) and ``triangles_error_vs_tim
 from __future__ import annotations
 
 import argparse
-import statistics
+import sys
 import time
 from pathlib import Path
 
@@ -41,25 +41,12 @@ import jaxcaustics as jc
 from jaxcaustics import reference
 from jaxcaustics._methods.triangles import splat_photons, trace_photons, triangle_window
 
+sys.path.insert(0, str(Path(__file__).parent))  # the harness beside this script
+from harness import markdown, timed  # noqa: E402
+
 RESULTS = Path(__file__).parent / "results"
 APERTURE = (0.0, 0.1, 0.0, 0.1)  # a 10 cm square lens
 SIGMAS = (0.1, 0.15, 0.2, 0.3, 0.4, 0.5, 0.7, 1.0, 1.5, 2.0, 3.0)  # splat radii, pixels
-
-
-def timed(fn, *args, repeats=7, budget_s=10.0) -> tuple[float, float]:
-    """(compile + first run seconds, median seconds of up to `repeats` runs after that;
-    at least 3, fewer than `repeats` when they would take more than `budget_s`)."""
-    start = time.perf_counter()
-    jax.block_until_ready(fn(*args))
-    first = time.perf_counter() - start
-    times = []
-    for _ in range(repeats):
-        start = time.perf_counter()
-        jax.block_until_ready(fn(*args))
-        times.append(time.perf_counter() - start)
-        if len(times) >= 3 and sum(times) > budget_s:
-            break
-    return first, statistics.median(times)
 
 
 def smooth_lens(pixels=64, dtype=np.float32):
@@ -198,19 +185,6 @@ def reference_rows(scene, counts, truth_p):
         print("reference", rows[-1], flush=True)
     rows.append(dict(photons=truth_p, error=None, error_blur=None, fwd_ms=truth_ms))
     return truth, rows
-
-
-def markdown(rows, columns, fmt) -> str:
-    head = "| " + " | ".join(columns) + " |\n|" + "---|" * len(columns) + "\n"
-    body = "".join(
-        "| "
-        + " | ".join(
-            fmt.get(c, "{}").format(r[c]) if r.get(c) is not None else "-" for c in columns
-        )
-        + " |\n"
-        for r in rows
-    )
-    return head + body
 
 
 FMT = {

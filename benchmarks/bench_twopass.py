@@ -22,7 +22,7 @@ from __future__ import annotations
 
 import argparse
 import functools
-import statistics
+import sys
 import time
 from pathlib import Path
 
@@ -37,20 +37,10 @@ from jaxcaustics import reference
 # the error of the library's tables, on a periodic sea's caustic (the image wraps)
 periodic_error = functools.partial(jc.image_error, boundary="periodic")
 
+sys.path.insert(0, str(Path(__file__).parent))  # the harness beside this script
+from harness import markdown, timed  # noqa: E402
+
 RESULTS = Path(__file__).parent / "results"
-
-
-def timed(fn, *args, repeats=7) -> tuple[float, float]:
-    """(compile + first run seconds, median seconds of `repeats` runs after that)."""
-    start = time.perf_counter()
-    jax.block_until_ready(fn(*args))
-    first = time.perf_counter() - start
-    times = []
-    for _ in range(repeats):
-        start = time.perf_counter()
-        jax.block_until_ready(fn(*args))
-        times.append(time.perf_counter() - start)
-    return first, statistics.median(times)
 
 
 def wave_scene(shape, *, zenith=30.0, extent=(0.0, 4.0, 0.0, 3.0)):
@@ -198,19 +188,6 @@ def reference_time_at(error, ref_rows) -> float | None:
             w = np.log(error / e0) / np.log(e1 / e0)
             return float(np.exp(np.log(t0) + w * (np.log(t1) - np.log(t0))))
     return None
-
-
-def markdown(rows, columns, fmt) -> str:
-    head = "| " + " | ".join(columns) + " |\n|" + "---|" * len(columns) + "\n"
-    body = "".join(
-        "| "
-        + " | ".join(
-            fmt.get(c, "{}").format(r[c]) if r.get(c) is not None else "-" for c in columns
-        )
-        + " |\n"
-        for r in rows
-    )
-    return head + body
 
 
 def _series(ax, rows, label_key, style, label):
