@@ -77,7 +77,7 @@ import jaxcaustics as jc  # noqa: E402
 from jaxcaustics import reference  # noqa: E402
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from fig6_intensity_correction import BLUR, HEIGHT, IOR, RADIUS, rel_l1  # noqa: E402
+from fig6_intensity_correction import BLUR, HEIGHT, IOR, RADIUS  # noqa: E402
 
 DEFAULT_OUTPUT = Path(__file__).resolve().parent / "output"
 NAME = "csl_moving_light"
@@ -261,8 +261,8 @@ def run(settings: dict, output: Path, reuse: bool = False) -> tuple[dict, dict]:
         rows[-1]["reference_seconds"] = ref_s
     for row in rows:
         image, truth = row.pop("image"), row.pop("truth")
-        row["rel_l1"] = rel_l1(image, truth, BLUR)
-        row["rel_l1_unblurred"] = rel_l1(image, truth, 0.0)
+        row["rel_l1"] = jc.image_error(image, truth, BLUR)
+        row["rel_l1_unblurred"] = jc.image_error(image, truth, 0.0)
         row["flux"] = float(image.sum() / truth.sum())
     # interpolation time after compilation
     d_mid = -np.asarray(dirs["s_mid"])
