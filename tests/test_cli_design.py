@@ -54,9 +54,9 @@ def test_design_writes_a_millable_lens_and_resumes_to_the_same_result(tmp_path, 
     ):
         assert (straight / name).is_file()
 
-    import jaxcaustics._inverse.design as design_module
+    import jaxcaustics._cli_inverse as cli_module  # where the command looks it up
 
-    original = design_module.design_lens
+    original = cli_module.design_lens
     calls = {"n": 0}
 
     def ctrl_c_in_level_two(*args, **kwargs):
@@ -66,7 +66,7 @@ def test_design_writes_a_millable_lens_and_resumes_to_the_same_result(tmp_path, 
         return original(*args, **kwargs)
 
     resumed = tmp_path / "resumed"
-    monkeypatch.setattr(design_module, "design_lens", ctrl_c_in_level_two)
+    monkeypatch.setattr(cli_module, "design_lens", ctrl_c_in_level_two)
     assert main([*args, "--output", str(resumed)]) == 130  # interrupted, checkpoint kept
     assert (resumed / "design.ckpt.npz").is_file() and not (resumed / "lens.stl").exists()
     assert main([*args, "--output", str(resumed), "--resume"]) == 0
