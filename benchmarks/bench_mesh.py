@@ -21,7 +21,7 @@ Writes ``benchmarks/results/mesh.md``.
 
 from __future__ import annotations
 
-import statistics
+import sys
 import time
 from pathlib import Path
 
@@ -31,6 +31,9 @@ import trimesh
 
 import jaxcaustics as jc
 from jaxcaustics import _intersect, reference
+
+sys.path.insert(0, str(Path(__file__).parent))  # the harness beside this script
+from harness import timed  # noqa: E402
 
 OUT = Path(__file__).parent / "results" / "mesh.md"
 
@@ -46,18 +49,11 @@ def ball(mesh: trimesh.Trimesh, pixels: int = 128) -> jc.MeshScene:
     )
 
 
-def timed(fn, repeats: int = 5, budget_s: float = 30.0) -> tuple[float, float, np.ndarray]:
-    """(compile seconds: the first call less the median, median seconds, the image)."""
-    start = time.perf_counter()
-    image = np.asarray(jax.block_until_ready(fn()))
-    first = time.perf_counter() - start
-    times = []
-    while len(times) < repeats and (len(times) < 3 or sum(times) < budget_s):
-        start = time.perf_counter()
-        jax.block_until_ready(fn())
-        times.append(time.perf_counter() - start)
-    median = statistics.median(times)
-    return first - median, median, image
+def timed_render(fn, repeats: int = 5, budget_s: float = 30.0):
+    """(compile seconds: the first call less the median, median seconds, the image), by
+    the benchmarks' `harness.timed` (the image from one more call)."""
+    first, median = timed(fn, repeats=repeats, budget_s=budget_s)
+    return first - median, median, np.asarray(fn())
 
 
 def main() -> None:
@@ -72,12 +68,14 @@ def main() -> None:
     scene = ball(trimesh.creation.icosphere(subdivisions=5, radius=0.3))
     truth = reference.trace_mesh(scene, photons_per_axis=2048)
     rows = []
-    compile_s, tree_s, tree_image = timed(lambda: jc.render(scene, "triangles"))
+    compile_s, tree_s, tree_image = timed_render(lambda: jc.render(scene, "triangles"))
     rows.append(("tree", compile_s, tree_s, jc.image_error(tree_image, truth)))
     saved = _intersect.BRUTE_FORCE_FACES
     _intersect.BRUTE_FORCE_FACES = 10**9
     try:
-        compile_s, brute_s, brute_image = timed(lambda: jc.render(scene, "triangles"), repeats=1)
+        compile_s, brute_s, brute_image = timed_render(
+            lambda: jc.render(scene, "triangles"), repeats=1
+        )
     finally:
         _intersect.BRUTE_FORCE_FACES = saved
     rows.append(("brute force", compile_s, brute_s, jc.image_error(brute_image, truth)))
@@ -130,7 +128,9 @@ def main() -> None:
     }
     for name, mesh in meshes.items():
         big = ball(mesh)
-        compile_s, seconds, image = timed(lambda big=big: jc.render(big, "triangles"), repeats=3)
+        compile_s, seconds, image = timed_render(
+            lambda big=big: jc.render(big, "triangles"), repeats=3
+        )
         flux = float(image.sum() * (2.0 / 128) ** 2)
         lines.append(
             f"| {name} | {len(mesh.faces)} | {compile_s:.1f} | {seconds:.3f} | {flux:.4f} |"

@@ -146,7 +146,15 @@ def test_a_render_and_its_gradient_do_not_change_with_the_tree(monkeypatch):
     vertices = scene.generator.vertices
     with_tree = jax.value_and_grad(loss)(vertices)
     monkeypatch.setattr(_intersect, "BRUTE_FORCE_FACES", 10**9)
+    searched = []  # the brute-force search traced (not a cached compilation of the tree's)
+    brute_search = _intersect.ray_triangle_distances
+    monkeypatch.setattr(
+        _intersect,
+        "ray_triangle_distances",
+        lambda *a, **k: searched.append(1) or brute_search(*a, **k),
+    )
     brute = jax.value_and_grad(loss)(vertices)
+    assert searched
     assert float(brute[0]) > 0
     np.testing.assert_allclose(float(with_tree[0]), float(brute[0]), rtol=1e-12)
     np.testing.assert_allclose(np.asarray(with_tree[1]), np.asarray(brute[1]), rtol=0, atol=1e-9)

@@ -104,8 +104,6 @@ RESULT_WINDOW_MARGIN = 0.5
 RESULT_MISSED_FLUX = 1e-3
 INITIAL_RIPPLE = 0.05  # scaled units: the random ripple of the default initial guess
 
-Solver = Literal["levenberg_marquardt", "gauss_newton", "bfgs", "lbfgs", "adam"]
-
 
 # ------------------------------------------------------------------ results
 
@@ -384,7 +382,7 @@ def recover_surface(
     receiver_extent=None,
     boundary: str = "periodic",
     start: Literal["auto", "transport", "ripple"] = "auto",
-    solver: Solver | SolverLike | None = None,
+    solver: SolverLike | None = None,
     smoothness: float = 1e-3,
     coarse_to_fine: Sequence[int] = (1,),
     max_steps: int = 100,

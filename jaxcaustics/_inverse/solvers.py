@@ -15,15 +15,18 @@ inverse problems report it.
 
 from __future__ import annotations
 
+from typing import Literal, get_args
+
 import jax
 import jax.numpy as jnp
 import lineax as lx
 import optax
 import optimistix as optx
 
-SOLVER_NAMES = ("levenberg_marquardt", "gauss_newton", "bfgs", "lbfgs", "adam")
+SolverName = Literal["levenberg_marquardt", "gauss_newton", "bfgs", "lbfgs", "adam"]
+SOLVER_NAMES: tuple[str, ...] = get_args(SolverName)
 
-SolverLike = str | optx.AbstractLeastSquaresSolver | optx.AbstractMinimiser
+SolverLike = SolverName | optx.AbstractLeastSquaresSolver | optx.AbstractMinimiser
 
 
 def check_solver(solver, name: str = "solver") -> SolverLike:

@@ -50,6 +50,7 @@ import numpy as np
 from .._optics import refract, refract_components
 from .._surface import _catmull_rom, _padded, sample_grid
 from .._transport import transport_map
+from .solvers import half_squares
 
 # conjugate-gradient iterations per Gauss-Newton step (measured under 30-degree light:
 # with 20 the irradiance fit's loss still fell only 20% a step after five steps, at
@@ -284,10 +285,6 @@ def _least_squares_step(lin, transpose, r, u, steps: int):
     return jax.lax.fori_loop(0, steps, body, init)[0]
 
 
-def sum_squares(tree):
-    return sum(jnp.sum(leaf * leaf) for leaf in jax.tree.leaves(tree))
-
-
 @eqx.filter_jit
 def _gauss_newton_step(problem: Preconditioned, u, cg_steps: int):
     """One Gauss-Newton step with a backtracking line search (the full step, then
@@ -295,7 +292,7 @@ def _gauss_newton_step(problem: Preconditioned, u, cg_steps: int):
     no try lowered the loss (half the sum of squares)."""
     r, lin = jax.linearize(problem, u)
     step = _least_squares_step(lin, jax.linear_transpose(lin, u), r, u, cg_steps)
-    loss = 0.5 * sum_squares(r)
+    loss = half_squares(r)
 
     def cond(carry):
         k, _, trial_loss = carry
@@ -304,7 +301,7 @@ def _gauss_newton_step(problem: Preconditioned, u, cg_steps: int):
     def body(carry):  # one copy of the residual in the compiled search
         k, scale, _ = carry
         scale = jnp.where(k == 0, scale, 0.5 * scale)
-        return k + 1, scale, 0.5 * sum_squares(problem(u + scale * step))
+        return k + 1, scale, half_squares(problem(u + scale * step))
 
     init = (jnp.array(0), jnp.asarray(1.0, u.dtype), jnp.asarray(jnp.inf, u.dtype))
     _, scale, trial_loss = jax.lax.while_loop(cond, body, init)
@@ -329,7 +326,7 @@ def gauss_newton(problem: Preconditioned, h0, steps: int, rtol: float, cg_steps:
         if not after < before * (1.0 - rtol):
             stalled = True
             break
-    history.append(after if after is not None else float(0.5 * sum_squares(problem(u))))
+    history.append(after if after is not None else float(half_squares(problem(u))))
     report = {
         "steps": taken,
         "rms": math.sqrt(2.0 * history[-1] / count),

@@ -551,8 +551,7 @@ def band_bytes(photons: int, channels: int, dtype=jnp.float64, faces: int = 0, r
     of `faces` generator faces, of one batch of `ray_batch` rays in the triangle search
     (`search_bytes`), bytes."""
     size = jnp.dtype(dtype).itemsize
-    search = search_bytes(ray_batch, faces, dtype) if faces else 0
-    return size * photons * channels * _BAND_FLOATS + search
+    return size * photons * channels * _BAND_FLOATS + search_bytes(ray_batch, faces, dtype)
 
 
 class _BandConfig(eqx.Module):
