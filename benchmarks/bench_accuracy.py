@@ -53,8 +53,8 @@ import numpy as np
 
 import jaxcaustics as jc
 from jaxcaustics import reference
-from jaxcaustics._choose import as_mesh_scene as _as_mesh_scene
-from jaxcaustics._choose import resolve_knobs
+from jaxcaustics.methods.choose import as_mesh_scene as _as_mesh_scene
+from jaxcaustics.methods.choose import resolve_knobs
 
 ROOT = Path(__file__).resolve().parent.parent
 RESULTS = ROOT / "benchmarks" / "results"

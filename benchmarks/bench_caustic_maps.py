@@ -607,7 +607,7 @@ NOTES = """
   truth's own error. The exact intersection removes that, but at the photon counts that
   fit in this run the splat radius dominates the error.
 - `intersection="exact"` and caustic triangles trace every photon against every face
-  (brute force, `jaxcaustics._intersect.nearest_hits`), milliseconds per photon on this
+  (brute force, `jaxcaustics.trace.intersect.nearest_hits`), milliseconds per photon on this
   CPU; the NumPy reference traces the same mesh much faster per photon, but it is not
   differentiable and not jit-compatible.
 - A Pareto point is only as good as the timings: the machine was shared (see the load

@@ -56,7 +56,7 @@ MITSUBA = (426.0, 0.27)  # quoted from the issue (200 Adam steps on 2 cores), no
 def target():
     from skimage import data
 
-    from jaxcaustics._inverse.design import _area_average
+    from jaxcaustics.inverse.design import _area_average
 
     return _area_average(data.camera().astype(float), (128, 128))
 
@@ -90,8 +90,8 @@ def one(name: str, quick: bool) -> dict:
     import numpy as np
 
     from jaxcaustics import reference
-    from jaxcaustics._inverse.design import design_lens
-    from jaxcaustics._inverse.verify import relative_l2
+    from jaxcaustics.inverse.design import design_lens
+    from jaxcaustics.inverse.verify import relative_l2
 
     kwargs = {**ROWS[name][1], **(QUICK if quick else {})}
     t = target()

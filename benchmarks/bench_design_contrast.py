@@ -50,7 +50,7 @@ def target(name: str):
     if name == "camera":
         from skimage import data
 
-        from jaxcaustics._inverse.design import _area_average
+        from jaxcaustics.inverse.design import _area_average
 
         return _area_average(data.camera().astype(float), (128, 128))
     return np.asarray(targets.TARGETS[name]())
@@ -90,7 +90,7 @@ def one(row: str) -> dict:
     import numpy as np
 
     from jaxcaustics import HeightField, LensScene, export_lens, read_exr
-    from jaxcaustics._inverse.design import design_lens
+    from jaxcaustics.inverse.design import design_lens
     from jaxcaustics.reference import trace_lens
 
     parts = row.split("-")

@@ -30,7 +30,8 @@ import numpy as np
 import trimesh
 
 import jaxcaustics as jc
-from jaxcaustics import _intersect, reference
+from jaxcaustics import reference
+from jaxcaustics.trace import intersect as _intersect
 
 sys.path.insert(0, str(Path(__file__).parent))  # the harness beside this script
 from harness import timed  # noqa: E402

@@ -18,7 +18,7 @@ The video: 16 frames, 0.1 s apart, of `wave_heights` (128^2, 2 mm RMS over waves
 Folding seas: the 32^2 sea of `tests/test_water_start.py` (three swells, light 30
 degrees off vertical, azimuth 20) with its relief scaled until rays cross, recovered
 with the start alone (``fold_fit=False``) and with the fold fit (``fold_fit=True``,
-`jaxcaustics._inverse.water_refine`), both judged as above.
+`jaxcaustics.inverse.water_refine`), both judged as above.
 
     python benchmarks/bench_recover.py        # about 20 minutes on 2 cores
 """
@@ -43,7 +43,7 @@ import numpy as np
 start = time.perf_counter()
 import jaxcaustics as jc
 from jaxcaustics import reference
-from jaxcaustics._inverse.recover import recover_surface
+from jaxcaustics.inverse.recover import recover_surface
 import_s = time.perf_counter() - start
 zenith, scale, photo = float(sys.argv[1]), float(sys.argv[2]), sys.argv[3] == "True"
 extent = (0.0, 1.0, 0.0, 1.0)
@@ -106,7 +106,7 @@ import json, time, warnings
 import numpy as np
 import jaxcaustics as jc
 from jaxcaustics import reference
-from jaxcaustics._inverse.recover import recover_surface
+from jaxcaustics.inverse.recover import recover_surface
 extent, n = (0.0, 1.0, 0.0, 1.0), 32
 terms = ((1, 0, 0.008, 0.3), (1, 1, 0.006, 1.1), (0, 2, 0.003, 2.0))
 light = jc.DirectionalLight.from_angles(30.0, 20.0)

@@ -86,10 +86,10 @@ def worker(n_devices: int, size: dict) -> dict:
     import numpy as np
 
     import jaxcaustics as jc
-    from jaxcaustics._inverse.design import design_lens_variants
-    from jaxcaustics._methods.triangles import caustic_triangles
-    from jaxcaustics._render_batch import render_batch
-    from jaxcaustics._sharding import gather_to_host, map_sharded, stack_scenes
+    from jaxcaustics.devices import gather_to_host, map_sharded, stack_scenes
+    from jaxcaustics.inverse.design import design_lens_variants
+    from jaxcaustics.methods.batch import render_batch
+    from jaxcaustics.methods.triangles.method import caustic_triangles
 
     assert len(jax.devices()) == n_devices, jax.devices()
     rng = np.random.default_rng(0)
@@ -140,8 +140,8 @@ def worker(n_devices: int, size: dict) -> dict:
         out["photon bands"] = {"skipped": "caustic_triangles has no `devices` argument"}
 
     # CSL fits over light directions
-    from jaxcaustics._ellipsoid import Ellipsoid, EllipsoidScene
-    from jaxcaustics._spot_light_table import _fit_direction
+    from jaxcaustics.methods.spot_lights.table import _fit_direction
+    from jaxcaustics.scene.ellipsoid import Ellipsoid, EllipsoidScene
 
     sphere = EllipsoidScene(
         Ellipsoid.sphere([0.0, 0.0, 1.0], 0.3),

@@ -31,7 +31,7 @@ import numpy as np
 import trimesh
 
 import jaxcaustics as jc
-from jaxcaustics._choose import allowed_rows, as_mesh_scene, resolve_knobs
+from jaxcaustics.methods.choose import allowed_rows, as_mesh_scene, resolve_knobs
 
 OUTPUT = Path(__file__).parent / "results"
 
@@ -129,7 +129,7 @@ def measure_kind(kind: str, scene, ref_knobs: dict, log=print) -> list[dict]:
             f"error {measured[-1]['error']:.4f} time {t:.4f} s"
         )
     out = []
-    for tol in sorted(set(tolerances_for(allowed, jc._choose.DEFAULT_MARGIN))):
+    for tol in sorted(set(tolerances_for(allowed, jc.methods.choose.DEFAULT_MARGIN))):
         choice = jc.choose_method(scene, tol)
         picked = next(m for m in measured if m["row"] is choice.row)
         meeting = [m for m in measured if m["error"] <= tol]
@@ -176,7 +176,8 @@ def report(results: list[dict], pixels: int, loads: dict) -> str:
         "median of 3 renders after a compiling one. `fastest meeting t`: the fastest of all "
         "the table's settings the scene allows, each run on this scene; `factor`: the "
         "choice's time over it. Margin "
-        f"{jc._choose.DEFAULT_MARGIN} (a setting is chosen if its tabled error x margin <= t).",
+        f"{jc.methods.choose.DEFAULT_MARGIN} (a setting is chosen if its tabled error x margin "
+        "<= t).",
         "",
         "| kind | t | choice | tabled error | error here | met | time ms | fastest meeting t "
         "| its ms | factor | load before/after |",

@@ -39,7 +39,7 @@ import numpy as np
 
 import jaxcaustics as jc
 from jaxcaustics import reference
-from jaxcaustics._methods.triangles import splat_photons, trace_photons, triangle_window
+from jaxcaustics.methods.triangles.method import splat_photons, trace_photons, triangle_window
 
 sys.path.insert(0, str(Path(__file__).parent))  # the harness beside this script
 from harness import markdown, timed  # noqa: E402

@@ -18,7 +18,7 @@ import numpy as np  # noqa: E402
 
 import jaxcaustics as jc  # noqa: E402
 from jaxcaustics import reference  # noqa: E402
-from jaxcaustics._inverse.recover import recover_surface  # noqa: E402
+from jaxcaustics.inverse.recover import recover_surface  # noqa: E402
 
 OUTPUT = Path("out")
 OUTPUT.mkdir(exist_ok=True)

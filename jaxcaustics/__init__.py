@@ -21,31 +21,24 @@ water surface from its caustic).
 
 import importlib.metadata
 
-from ._choose import (
-    Choice,
-    accuracy_table,
-    choose_method,
-    image_error,
-    method_support,
-    reference_image,
-)
-from ._ellipsoid import Ellipsoid, EllipsoidScene, ExitRays, trace_exit_rays
-from ._export import (
+from .devices import device_mesh, gather_to_host, map_sharded, stack_scenes, unstack_scenes
+from .inverse.design import LensDesign, design_lens, design_lens_variants, fresnel_zones
+from .inverse.export import (
     ManufacturabilityReport,
     export_lens,
     lens_height_map,
     lens_solid,
     manufacturability,
 )
-from ._gbuffer import GeometryBuffers, geometry_buffers, ray_geo
-from ._inverse.design import LensDesign, design_lens, design_lens_variants, fresnel_zones
-from ._inverse.recover import RecoveryResult, recover_surface
-from ._inverse.sequence import SequenceResult, recover_sequence
-from ._inverse.verify import Verification, relative_l2, verify_lens
-from ._io import read_exr, read_image, write_exr, write_png, write_png_linear16
-from ._light_view import LightView, light_view
-from ._mesh import Mesh, MeshScene
-from ._methods.caustic_map import (
+from .inverse.recover import RecoveryResult, recover_surface
+from .inverse.sequence import SequenceResult, recover_sequence
+from .inverse.transport import TransportMap, transport_map
+from .inverse.verify import Verification, relative_l2, verify_lens
+from .io.images import read_exr, read_image, write_exr, write_png, write_png_linear16
+from .methods.batch import render_batch
+from .methods.caustic_map.gbuffer import GeometryBuffers, geometry_buffers, ray_geo
+from .methods.caustic_map.light_view import LightView, light_view
+from .methods.caustic_map.method import (
     CausticMapResult,
     PinholeCamera,
     adaptive_caustic_map,
@@ -54,39 +47,18 @@ from ._methods.caustic_map import (
     photon_bytes,
     project_caustic_map,
 )
-from ._methods.spot_lights import SpotLightResult, spot_lights
-from ._methods.triangles import (
-    CubeMapOptions,
-    TrianglesResult,
-    caustic_triangles,
-    splat_photons,
-    trace_photons,
-    triangle_window,
-    triangles_image,
+from .methods.choose import (
+    Choice,
+    accuracy_table,
+    choose_method,
+    image_error,
+    method_support,
+    reference_image,
 )
-from ._methods.twopass import TwoPassResult, auto_window, two_pass
-from ._optics import fresnel_transmittance, reflect, refract
-from ._photons import Photons
-from ._render import render
-from ._render_batch import render_batch
-from ._scene import (
-    DirectionalLight,
-    Effects,
-    HeightField,
-    LensScene,
-    PlaneReceiver,
-    PointLight,
-    WaterScene,
-)
-from ._sharding import device_mesh, gather_to_host, map_sharded, stack_scenes, unstack_scenes
-from ._spot_light_fit import FitInfo, fit_spot_lights, refine_axis
-from ._spot_light_table import (
-    SpotLightTable,
-    icosphere_directions,
-    interpolate_spot_lights,
-    precompute_spot_lights,
-)
-from ._spot_lights import (
+from .methods.render import render
+from .methods.spot_lights.exit_rays import ExitRays, trace_exit_rays
+from .methods.spot_lights.fit import FitInfo, fit_spot_lights, refine_axis
+from .methods.spot_lights.lights import (
     Glossy,
     Lambertian,
     SpotLightRays,
@@ -95,9 +67,38 @@ from ._spot_lights import (
     render_spot_lights,
     shade_points,
 )
-from ._surface import height_and_gradient
-from ._transport import TransportMap, transport_map
-from ._waves import gaussian_bump, sine_sum, wave_heights
+from .methods.spot_lights.method import SpotLightResult, spot_lights
+from .methods.spot_lights.table import (
+    SpotLightTable,
+    icosphere_directions,
+    interpolate_spot_lights,
+    precompute_spot_lights,
+)
+from .methods.triangles.method import (
+    CubeMapOptions,
+    TrianglesResult,
+    caustic_triangles,
+    splat_photons,
+    trace_photons,
+    triangle_window,
+    triangles_image,
+)
+from .methods.twopass import TwoPassResult, auto_window, two_pass
+from .scene.ellipsoid import Ellipsoid, EllipsoidScene
+from .scene.mesh import Mesh, MeshScene
+from .scene.scene import (
+    DirectionalLight,
+    Effects,
+    HeightField,
+    LensScene,
+    PlaneReceiver,
+    PointLight,
+    WaterScene,
+)
+from .scene.surface import height_and_gradient
+from .scene.waves import gaussian_bump, sine_sum, wave_heights
+from .trace.optics import fresnel_transmittance, reflect, refract
+from .trace.photons import Photons
 
 __version__ = importlib.metadata.version("jaxcaustics")
 

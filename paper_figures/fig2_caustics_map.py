@@ -31,7 +31,7 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
 import jaxcaustics as jc  # noqa: E402
-from jaxcaustics._cli import _size  # noqa: E402  (the CLI's COLSxROWS parser)
+from jaxcaustics.cli.main import _size  # noqa: E402  (the CLI's COLSxROWS parser)
 
 DEFAULT_OUTPUT = Path(__file__).resolve().parent / "output"
 

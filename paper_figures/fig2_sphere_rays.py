@@ -42,7 +42,7 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
 import jaxcaustics as jc  # noqa: E402
-from jaxcaustics._light_view import orthonormal_basis  # noqa: E402
+from jaxcaustics.trace.optics import orthonormal_basis
 
 DEFAULT_OUTPUT = Path(__file__).resolve().parent / "output"
 NAME = "fig2_sphere_rays"

@@ -68,7 +68,7 @@ import trimesh  # noqa: E402
 
 import jaxcaustics as jc  # noqa: E402
 from jaxcaustics import reference  # noqa: E402
-from jaxcaustics._methods.triangles import splat_photons  # noqa: E402
+from jaxcaustics.methods.triangles.method import splat_photons  # noqa: E402
 
 DEFAULT_OUTPUT = Path(__file__).resolve().parent / "output"
 NAME = "fig_triangles_vs_splats"

@@ -21,7 +21,11 @@ import jax
 import trimesh
 
 import jaxcaustics as jc
-from jaxcaustics._gbuffer import geometry_buffers, intersection_errors, raster_window
+from jaxcaustics.methods.caustic_map.gbuffer import (
+    geometry_buffers,
+    intersection_errors,
+    raster_window,
+)
 
 jax.config.update("jax_enable_x64", True)
 

@@ -24,11 +24,11 @@ import numpy as np
 import pytest
 
 import jaxcaustics as jc
-import jaxcaustics._inverse.design as design_module
-import jaxcaustics._inverse.sequence as sequence_module
+import jaxcaustics.inverse.design as design_module
+import jaxcaustics.inverse.sequence as sequence_module
 from jaxcaustics import reference
-from jaxcaustics._cli import main
-from jaxcaustics._cli_inverse import with_flags
+from jaxcaustics.cli.design import with_flags
+from jaxcaustics.cli.main import main
 
 # every backend compilation while a case runs (none may happen: errors come first)
 _COMPILED: list[str] = []
@@ -57,7 +57,7 @@ def forbid(monkeypatch):
 
     monkeypatch.setattr(design_module, "_run_level", started)
     monkeypatch.setattr(design_module, "_design_by_transport", started)
-    import jaxcaustics._sharding as sharding
+    import jaxcaustics.devices as sharding
 
     monkeypatch.setattr(sharding, "map_sharded", started)
     recover = sequence_module.recover_surface
@@ -179,7 +179,7 @@ CAUSTIC = 1.0 + 0.1 * np.sin(np.arange(64.0)).reshape(8, 8)
     ],
 )
 def test_recover_surface_refuses(forbid, monkeypatch, change, name):
-    import jaxcaustics._inverse.recover as recover
+    import jaxcaustics.inverse.recover as recover
 
     def started(*args, **kwargs):
         raise AssertionError("the recovery started before the arguments were checked")

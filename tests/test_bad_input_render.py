@@ -21,8 +21,8 @@ from hypothesis import event, given, settings
 from hypothesis import strategies as st
 
 import jaxcaustics as jc
-from jaxcaustics._photons import Photons
-from jaxcaustics._scene_checks import check_scene_values
+from jaxcaustics.scene.checks import check_scene_values
+from jaxcaustics.trace.photons import Photons
 
 
 def _water(n=4):

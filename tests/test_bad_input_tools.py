@@ -13,9 +13,12 @@ import pytest
 import trimesh
 
 import jaxcaustics as jc
-from jaxcaustics import _gbuffer, _spot_light_fit, _spot_light_table, _spot_lights
-from jaxcaustics._ellipsoid import Ellipsoid, EllipsoidScene
-from jaxcaustics._light_view import LightView
+from jaxcaustics.methods.caustic_map import gbuffer as _gbuffer
+from jaxcaustics.methods.caustic_map.light_view import LightView
+from jaxcaustics.methods.spot_lights import fit as _spot_light_fit
+from jaxcaustics.methods.spot_lights import lights as _spot_lights
+from jaxcaustics.methods.spot_lights import table as _spot_light_table
+from jaxcaustics.scene.ellipsoid import Ellipsoid, EllipsoidScene
 
 NAN = float("nan")
 INF = float("inf")
@@ -373,7 +376,7 @@ def test_interpolate_and_table_files(no_work, tmp_path):
     ],
 )
 def test_trace_exit_rays(ball, monkeypatch, kwargs, name):
-    from jaxcaustics import _ellipsoid
+    from jaxcaustics.methods.spot_lights import exit_rays as _ellipsoid
 
     monkeypatch.setattr(_ellipsoid, "_ellipsoid_exit_rays", forbidden)
     kwargs = {"rays_per_axis": 4, **kwargs}

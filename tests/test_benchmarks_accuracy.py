@@ -31,7 +31,7 @@ def test_knobs_per_pixel_round_trip():
     bench = load_bench()
     stored = bench.table_knobs("triangles", {"photons": 33, "reconstruction": "exact"}, 64)
     assert stored == {"photons": {"per_pixel": 0.515625}, "reconstruction": "exact"}
-    resolve = jc._choose.resolve_knobs
+    resolve = jc.methods.choose.resolve_knobs
     assert resolve("triangles", stored, (64, 48), (64, 64)) == {
         "photons": 33,
         "reconstruction": "exact",
@@ -70,13 +70,13 @@ def test_bench_accuracy_quick(tmp_path):
         assert result["rows"], kind
         for row in result["rows"]:
             assert ROW_KEYS <= set(row), (kind, row)
-            assert row["method"] in jc._render.METHODS, row
+            assert row["method"] in jc.methods.render.METHODS, row
             assert 0.0 <= row["error"] < 1.0 and row["time_s"] > 0.0, row
             assert row["as_mesh"] is None or set(row["as_mesh"]) == {"subdivisions"}
             if not row["choosable"]:
                 continue
             # the row's knobs as stored, resolved for this receiver, run through render
-            knobs = jc._choose.resolve_knobs(
+            knobs = jc.methods.choose.resolve_knobs(
                 row["method"], row["knobs"], scene.receiver.shape, result["pixels"]
             )
             image = np.asarray(jc.render(bench.scene_for_row(scene, row), row["method"], **knobs))
@@ -106,6 +106,6 @@ def test_package_table_schema():
     for result in table["kinds"].values():
         for row in result["rows"]:
             assert ROW_KEYS <= set(row)
-            assert row["method"] in jc._render.METHODS
+            assert row["method"] in jc.methods.render.METHODS
             for value in row["knobs"].values():
                 assert not isinstance(value, dict) or set(value) == {"per_pixel"}

@@ -14,7 +14,11 @@ import trimesh
 
 import jaxcaustics as jc
 from jaxcaustics import reference
-from jaxcaustics._gbuffer import geometry_buffers, intersection_errors, raster_window
+from jaxcaustics.methods.caustic_map.gbuffer import (
+    geometry_buffers,
+    intersection_errors,
+    raster_window,
+)
 
 
 def ball_scene(zenith=10.0, *, shape=(32, 32), subdivisions=2, dtype=np.float64, **kwargs):

@@ -5,7 +5,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from jaxcaustics._inverse.checkpoint import load_checkpoint, run_rounds, save_checkpoint
+from jaxcaustics.inverse.checkpoint import load_checkpoint, run_rounds, save_checkpoint
 
 
 def _descent_round(state):

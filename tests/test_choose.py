@@ -189,7 +189,7 @@ def test_moving_light_rows_render_through_the_mesh_and_skip_report_only_rows():
     choice = jc.choose_method(ellipsoid_scene(), 0.07, table=TABLE)
     # the report-only spot-lights row (error 0.01, fastest) is not choosable
     assert choice.method == "triangles" and choice.as_mesh == {"subdivisions": 2}
-    mesh = jc._choose.as_mesh_scene(ellipsoid_scene(), 2)
+    mesh = jc.methods.choose.as_mesh_scene(ellipsoid_scene(), 2)
     assert isinstance(mesh, jc.MeshScene) and mesh.generator.faces.shape == (320, 3)
     assert jc.choose_method(ellipsoid_scene(), 0.13, table=TABLE).method == "spot_lights"
 
@@ -201,7 +201,7 @@ def test_mirrors_have_no_table():
 
 
 def test_render_with_tolerance_runs_the_choice_and_reports_it(monkeypatch, caplog):
-    monkeypatch.setattr(jc._choose, "_packaged_table", lambda: TABLE)
+    monkeypatch.setattr(jc.methods.choose, "_packaged_table", lambda: TABLE)
     scene = water()
     with caplog.at_level(logging.INFO, logger="jaxcaustics"):
         image, stats = jc.render(scene, tolerance=0.06, return_stats=True)
@@ -220,7 +220,7 @@ def test_stored_table_has_every_kind_and_runnable_methods():
         rows = [r for r in entry["rows"] if r.get("choosable", True)]
         assert rows, kind
         for r in rows:
-            assert r["method"] in jc._render.METHODS
+            assert r["method"] in jc.methods.render.METHODS
             assert np.isfinite(r["error"]) and r["error"] > 0 and r["time_s"] > 0
         for ref in entry["reference"]:
             assert np.isfinite(ref["error"]) and ref["time_s"] > 0

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 import jaxcaustics as jc
-from jaxcaustics._cli import main
+from jaxcaustics.cli.main import main
 
 TINY = ["--size", "48x36"]  # 48 x 36 pixels over the default 4 x 3 m
 

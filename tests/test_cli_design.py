@@ -7,9 +7,9 @@ import pytest
 import trimesh
 
 from jaxcaustics import read_exr
-from jaxcaustics._cli import main
-from jaxcaustics._cli_inverse import length
-from jaxcaustics._io import write_png_linear16
+from jaxcaustics.cli.design import length
+from jaxcaustics.cli.main import main
+from jaxcaustics.io.images import write_png_linear16
 
 ARGS = ["design", "--size", "16", "--levels", "8,16", "--steps", "3", "--width", "80mm"]
 
@@ -54,7 +54,7 @@ def test_design_writes_a_millable_lens_and_resumes_to_the_same_result(tmp_path, 
     ):
         assert (straight / name).is_file()
 
-    import jaxcaustics._cli_inverse as cli_module  # where the command looks it up
+    import jaxcaustics.cli.design as cli_module  # where the command looks it up
 
     original = cli_module.design_lens
     calls = {"n": 0}

@@ -6,9 +6,9 @@ import json
 import numpy as np
 import pytest
 
-import jaxcaustics._inverse.design as design_module
+import jaxcaustics.inverse.design as design_module
 from jaxcaustics import DirectionalLight, PointLight
-from jaxcaustics._inverse.design import design_lens
+from jaxcaustics.inverse.design import design_lens
 from jaxcaustics.reference import trace_lens
 
 SPEC = dict(width=0.1, height=0.1, thickness=0.02, throw=0.5)
@@ -378,7 +378,7 @@ def test_landing_goals_are_read_smoothly_between_their_samples():
     surface gets a moire; measured, 20-degree light: 1 - SSIM 0.184 -> 0.170)."""
     import jax.numpy as jnp
 
-    from jaxcaustics._inverse.design import _bicubic, _bilinear
+    from jaxcaustics.inverse.design import _bicubic, _bilinear
 
     x = np.arange(12) + 0.5
     image = jnp.asarray(np.sin(0.4 * x)[None, :] * np.cos(0.3 * x)[:, None])
@@ -404,7 +404,7 @@ def test_edges_under_leaning_light_get_a_bevel_and_the_band_it_takes_no_transpor
     band whose rays reach the bevel. Vertical light needs none."""
     from types import SimpleNamespace
 
-    from jaxcaustics._inverse.design import _edge_bevel
+    from jaxcaustics.inverse.design import _edge_bevel
 
     cell = 2.0 / 64
     h = np.full((64, 64), -0.1)
@@ -436,7 +436,7 @@ def test_the_map_smoothing_keeps_ramps_and_removes_a_one_cell_staircase():
     [1, 2, 1] / 4: a ramp (a shift, a uniform stretch) stays as it is inside, the
     discrete Legendre transforms' one-cell alternation goes (measured, 20-degree
     light before refinement: 1 - SSIM 0.150 -> 0.129, the moire arcs gone)."""
-    from jaxcaustics._inverse.design import _binomial_smooth
+    from jaxcaustics.inverse.design import _binomial_smooth
 
     rows, cols = np.mgrid[0:9, 0:11].astype(float)
     ramp = 0.3 * rows - 0.7 * cols + 2.0
@@ -456,7 +456,7 @@ def test_the_image_refinement_moves_only_modes_its_photons_resolve():
     import jax
     import jax.numpy as jnp
 
-    from jaxcaustics._inverse.design import _ImageRefine, _resolved_modes
+    from jaxcaustics.inverse.design import _ImageRefine, _resolved_modes
 
     resolved = _resolved_modes((8, 12), 5)  # 6 photons (5 cells) a side resolve 5 modes
     assert resolved.shape == (8, 12) and resolved[4, 4] and not resolved[5, 0]
@@ -482,7 +482,7 @@ def test_a_ring_wider_than_the_bevel_can_take_warns():
     beyond the aperture is wider than a quarter of it: the bevel stops there and says so."""
     from types import SimpleNamespace
 
-    from jaxcaustics._inverse.design import _edge_bevel
+    from jaxcaustics.inverse.design import _edge_bevel
 
     h = np.full((16, 16), -2.0)
     h[8, 8] = 0.0
@@ -527,7 +527,7 @@ def test_the_refinement_loss_gradient_through_its_custom_jvp_is_the_reverse_mode
     import jax.numpy as jnp
 
     from jaxcaustics import HeightField, LensScene, PlaneReceiver
-    from jaxcaustics._inverse.design import _image_loss, _ImageRefine
+    from jaxcaustics.inverse.design import _image_loss, _ImageRefine
 
     rng = np.random.default_rng(3)
     heights = 0.02 * rng.normal(size=(12, 12))

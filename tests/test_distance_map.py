@@ -7,7 +7,7 @@ import pytest
 import trimesh
 
 from jaxcaustics import Mesh
-from jaxcaustics import _distance_map as dm
+from jaxcaustics.methods.triangles import distance_map as dm
 
 CENTER = np.array([0.0, 0.0, 1.0])
 BOX_HALF, BOX_TOP = 0.2, 0.3  # box [-0.2, 0.2]^2 x [0, 0.3] standing on the receiver

@@ -15,7 +15,7 @@ For every effect and every method that supports it, two things are shown:
 
 The effects and their kernels:
 
-- refraction: `refract_components` (`jaxcaustics._optics`); reflection (mirror
+- refraction: `refract_components` (`jaxcaustics.trace.optics`); reflection (mirror
   generators): `reflect`. They are the generator's material, not switches of their own:
   a refractor traces no `reflect`, a mirror no `refract_components`. Refraction present
   without influence is an index of 1: the light goes straight through.
@@ -23,7 +23,7 @@ The effects and their kernels:
   (transmittance 1).
 - total internal reflection (TIR): the TIR test inside the refraction kernel
   (`_cos_transmitted` returns a mask). It has no switch either: it is traced wherever
-  the indices make it possible (`jaxcaustics._optics.tir_possible`), and not for water of
+  the indices make it possible (`jaxcaustics.trace.optics.tir_possible`), and not for water of
   index > 1 (light going into a denser medium). Without influence: a scene where TIR is
   possible but no ray reaches the critical angle gives the same image as the same scene
   traced with the TIR test switched off (`tir_possible` patched to ``False``).
@@ -49,10 +49,15 @@ import trimesh
 from conftest import make_scene
 
 import jaxcaustics as jc
-from jaxcaustics import _distance_map, _ellipsoid, _gbuffer, _optics, _photons, _spot_lights
-from jaxcaustics._methods import triangles as triangles_module
-from jaxcaustics._methods import twopass
-from jaxcaustics._methods.triangles import CubeMapOptions
+from jaxcaustics.methods import twopass
+from jaxcaustics.methods.caustic_map import gbuffer as _gbuffer
+from jaxcaustics.methods.spot_lights import exit_rays as _ellipsoid
+from jaxcaustics.methods.spot_lights import lights as _spot_lights
+from jaxcaustics.methods.triangles import distance_map as _distance_map
+from jaxcaustics.methods.triangles import method as triangles_module
+from jaxcaustics.methods.triangles.method import CubeMapOptions
+from jaxcaustics.trace import optics as _optics
+from jaxcaustics.trace import photons as _photons
 
 # ----------------------------------------------------------------------------- helpers
 
@@ -553,7 +558,7 @@ def _distance_map_occlusion_work(monkeypatch, scene) -> dict:
         seen["shadow_test"] = kwargs.get("shadow_test", True)
         return project(*args, **kwargs)
 
-    # (patched where the pipeline looks them up: `_methods.triangles` imports them)
+    # (patched where the pipeline looks them up: `methods/triangles/method.py` imports them)
     monkeypatch.setattr(triangles_module, "build_distance_map", build_spy)
     monkeypatch.setattr(triangles_module, "project_light_cube_map", project_spy)
     _trace(distance_map, scene)

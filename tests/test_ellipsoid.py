@@ -12,7 +12,8 @@ from scipy.ndimage import gaussian_filter
 
 import jaxcaustics as jc
 from jaxcaustics import reference
-from jaxcaustics._ellipsoid import Ellipsoid, EllipsoidScene, _square_grid, trace_exit_rays
+from jaxcaustics.methods.spot_lights.exit_rays import _square_grid, trace_exit_rays
+from jaxcaustics.scene.ellipsoid import Ellipsoid, EllipsoidScene
 
 VERTICAL = jc.DirectionalLight([0.0, 0.0, -1.0])
 OBLIQUE = jc.DirectionalLight.from_angles(30.0, 20.0)

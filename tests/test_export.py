@@ -8,7 +8,7 @@ import pytest
 import trimesh
 
 import jaxcaustics as jc
-from jaxcaustics._export import (
+from jaxcaustics.inverse.export import (
     ManufacturabilityReport,
     export_lens,
     lens_height_map,

@@ -14,8 +14,8 @@ import pytest
 import trimesh
 
 import jaxcaustics as jc
-from jaxcaustics import _intersect
-from jaxcaustics._intersect import (
+from jaxcaustics.trace import intersect as _intersect
+from jaxcaustics.trace.intersect import (
     BRUTE_FORCE_FACES,
     LEAF_FACES,
     build_hierarchy,

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 import skimage.io
 
-from jaxcaustics._io import (
+from jaxcaustics.io.images import (
     _read_png_16bit_color,
     read_exr,
     read_image,

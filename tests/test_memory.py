@@ -17,9 +17,9 @@ import trimesh
 
 import jaxcaustics as jc
 from jaxcaustics import reference as ref
-from jaxcaustics._methods.caustic_map import _dense_map, _view_and_buffers, caustics_mapping
-from jaxcaustics._methods.spot_lights import max_rays_per_axis, ray_bytes, spot_lights
-from jaxcaustics._methods.triangles import band_bytes, caustic_triangles, triangle_bytes
+from jaxcaustics.methods.caustic_map.method import _dense_map, _view_and_buffers, caustics_mapping
+from jaxcaustics.methods.spot_lights.method import max_rays_per_axis, ray_bytes, spot_lights
+from jaxcaustics.methods.triangles.method import band_bytes, caustic_triangles, triangle_bytes
 
 MiB, GiB = 1 << 20, 1 << 30
 # what the compiled temporaries may hold besides the photon buffers: the receiver image

@@ -14,7 +14,7 @@ import trimesh
 
 import jaxcaustics as jc
 from jaxcaustics import reference
-from jaxcaustics._render import MISSED_FLUX_WARNING
+from jaxcaustics.methods.render import MISSED_FLUX_WARNING
 
 EXTENT = (0.0, 2.0, 0.0, 2.0)
 

@@ -7,7 +7,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from jaxcaustics._raster import (
+from jaxcaustics.reconstruct.raster import (
     pixel_coordinates,
     rasterize_exact,
     rasterize_gouraud,

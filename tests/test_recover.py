@@ -11,8 +11,8 @@ import numpy as np
 import pytest
 
 import jaxcaustics as jc
-from jaxcaustics._inverse import recover
-from jaxcaustics._inverse.recover import SOLVERS, recover_surface
+from jaxcaustics.inverse import recover
+from jaxcaustics.inverse.recover import SOLVERS, recover_surface
 
 EXT = (0.0, 1.0, 0.0, 1.0)
 DEPTH = 0.5

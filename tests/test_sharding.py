@@ -14,14 +14,14 @@ import pytest
 from _subprocess import run_python
 
 import jaxcaustics as jc
-from jaxcaustics._inverse.design import design_lens_variants
-from jaxcaustics._render_batch import render_batch
-from jaxcaustics._sharding import (
+from jaxcaustics.devices import (
     _addressable,
     gather_to_host,
     stack_scenes,
     unstack_scenes,
 )
+from jaxcaustics.inverse.design import design_lens_variants
+from jaxcaustics.methods.batch import render_batch
 
 SCRIPT = textwrap.dedent(
     """
@@ -33,8 +33,8 @@ SCRIPT = textwrap.dedent(
     import jax.numpy as jnp
     import numpy as np
     import jaxcaustics as jc
-    from jaxcaustics._render_batch import render_batch
-    from jaxcaustics._sharding import MESH_AXIS, gather_to_host, stack_scenes
+    from jaxcaustics.methods.batch import render_batch
+    from jaxcaustics.devices import MESH_AXIS, gather_to_host, stack_scenes
 
     assert len(jax.devices()) == 4, jax.devices()
     rng = np.random.default_rng(0)
@@ -77,8 +77,8 @@ SCRIPT = textwrap.dedent(
     images = render_batch(lenses, photons=21)  # a list is stacked here
     assert images.sharding.spec == jax.sharding.PartitionSpec(MESH_AXIS)  # split 4 ways
     assert len(images.sharding.device_set) == 4
-    from jaxcaustics._render_batch import _resolve_auto_knobs
-    from jaxcaustics._render import METHODS
+    from jaxcaustics.methods.batch import _resolve_auto_knobs
+    from jaxcaustics.methods.render import METHODS
     window = _resolve_auto_knobs(
         stack_scenes(lenses), "triangles", METHODS["triangles"], {"photons": 21}
     )["window"]
@@ -104,7 +104,7 @@ SCRIPT = textwrap.dedent(
         np.testing.assert_allclose(g4, g1, rtol=1e-10, atol=1e-10)
 
         # design variants over three throws, against design_lens one by one
-        from jaxcaustics._inverse.design import design_lens, design_lens_variants
+        from jaxcaustics.inverse.design import design_lens, design_lens_variants
 
         y, x = np.mgrid[-1:1:12j, -1:1:12j]
         target = np.exp(-((x - 0.2) ** 2 + y**2) / 0.2) + 0.1
@@ -241,7 +241,7 @@ SPEC = dict(width=0.05, height=0.05, thickness=0.01, levels=(8,), max_steps=2)
     ],
 )
 def test_design_variants_reject_bad_arguments(kwargs, match, monkeypatch):
-    from jaxcaustics._inverse import design
+    from jaxcaustics.inverse import design
 
     def forbidden(*args, **kwargs):
         raise AssertionError("the optimisation started before the arguments were checked")

@@ -24,8 +24,8 @@ import numpy as np
 import trimesh
 
 import jaxcaustics as jc
-from jaxcaustics._methods.caustic_map import caustics_mapping
-from jaxcaustics._methods.triangles import caustic_triangles
+from jaxcaustics.methods.caustic_map.method import caustics_mapping
+from jaxcaustics.methods.triangles.method import caustic_triangles
 
 assert len(jax.devices()) == 4
 x = (np.arange(12) + 0.5) / 12 * 0.1 - 0.05

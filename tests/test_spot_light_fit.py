@@ -16,7 +16,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from jaxcaustics._spot_light_fit import (
+from jaxcaustics.methods.spot_lights.fit import (
     FitInfo,
     as_ray_set,
     fit_focus_law,
@@ -27,7 +27,7 @@ from jaxcaustics._spot_light_fit import (
     refine_axis,
     splat_intensity,
 )
-from jaxcaustics._spot_lights import SpotLights
+from jaxcaustics.methods.spot_lights.lights import SpotLights
 
 FIT = dict(max_lights=3, resolution=32, cells=16, axis_iterations=30, fit_steps=60)
 RAYS_PER_LIGHT = 300  # half of each light's rays: the other half mirrors them
@@ -350,7 +350,7 @@ def test_traced_glass_sphere_exit_rays():
     """The ray tracer's own ``ExitRays`` (duck typed): a glass sphere under a slightly
     slanted sun gives a main light along the light's direction holding most energy."""
     import jaxcaustics as jc
-    from jaxcaustics._ellipsoid import trace_exit_rays
+    from jaxcaustics.methods.spot_lights.exit_rays import trace_exit_rays
 
     scene = jc.EllipsoidScene(
         jc.Ellipsoid.sphere([0.0, 0.0, 1.0], 0.3),

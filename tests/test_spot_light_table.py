@@ -16,8 +16,8 @@ import numpy as np
 import pytest
 from _subprocess import run_python
 
-from jaxcaustics._light_view import orthonormal_basis
-from jaxcaustics._spot_light_table import (
+from jaxcaustics.methods.spot_lights.lights import SpotLights
+from jaxcaustics.methods.spot_lights.table import (
     SpotLightTable,
     _canonicalise,
     _locate,
@@ -30,7 +30,7 @@ from jaxcaustics._spot_light_table import (
     interpolate_spot_lights,
     slerp,
 )
-from jaxcaustics._spot_lights import SpotLights
+from jaxcaustics.trace.optics import orthonormal_basis
 
 N = 24
 K = 3
@@ -125,7 +125,7 @@ def synthetic_tracks(directions, faces, fields, kinds):
 
 
 def stacked(fields):
-    from jaxcaustics._spot_light_table import _stacked_spot_lights
+    from jaxcaustics.methods.spot_lights.table import _stacked_spot_lights
 
     return _stacked_spot_lights(fields)
 
@@ -435,7 +435,7 @@ SHARDING_SCRIPT = textwrap.dedent(
     jax.config.update("jax_enable_x64", True)
     import jax.numpy as jnp
     import numpy as np
-    from jaxcaustics._spot_light_table import map_sharded
+    from jaxcaustics.methods.spot_lights.table import map_sharded
 
     assert len(jax.devices()) == 4, jax.devices()
     seen = set()
@@ -458,7 +458,7 @@ SHARDING_SCRIPT = textwrap.dedent(
     x = jax.device_put(np.zeros((8, 3)), NamedSharding(mesh, PartitionSpec("directions")))
     assert len(x.addressable_shards) == 4 and x.addressable_shards[0].data.shape == (2, 3)
     if len(sys.argv) > 1:
-        from jaxcaustics._ellipsoid import Ellipsoid, EllipsoidScene
+        from jaxcaustics.scene.ellipsoid import Ellipsoid, EllipsoidScene
         import jaxcaustics as jc
         scene = EllipsoidScene(
             Ellipsoid.sphere([0.0, 0.0, 1.0], 0.3),
@@ -466,8 +466,11 @@ SHARDING_SCRIPT = textwrap.dedent(
             jc.PlaneReceiver([-1.0, 1.0, -1.0, 1.0], (32, 32)),
             ior=1.5,
         )
-        from jaxcaustics._ellipsoid import trace_exit_rays
-        from jaxcaustics._spot_light_table import icosphere_directions, precompute_spot_lights
+        from jaxcaustics.methods.spot_lights.exit_rays import trace_exit_rays
+        from jaxcaustics.methods.spot_lights.table import (
+            icosphere_directions,
+            precompute_spot_lights,
+        )
 
         # the tracer (continuous in its inputs) agrees to rounding
         def trace(sc, d):
@@ -522,8 +525,8 @@ def test_precompute_sharded_agrees_with_single_device(tmp_path):
 @needs_tracer
 def test_precompute_glass_sphere(tmp_path):
     import jaxcaustics as jc
-    from jaxcaustics._ellipsoid import Ellipsoid, EllipsoidScene
-    from jaxcaustics._spot_light_table import precompute_spot_lights
+    from jaxcaustics.methods.spot_lights.table import precompute_spot_lights
+    from jaxcaustics.scene.ellipsoid import Ellipsoid, EllipsoidScene
 
     scene = EllipsoidScene(
         Ellipsoid.sphere([0.0, 0.0, 1.0], 0.3),

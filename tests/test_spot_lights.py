@@ -6,7 +6,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from jaxcaustics._spot_lights import (
+from jaxcaustics.methods.spot_lights.lights import (
     Glossy,
     Lambertian,
     SpotLights,
@@ -279,7 +279,7 @@ def test_render_conserves_power_of_a_collimated_light():
 
 def test_sphere_occluder_casts_a_shadow_and_shading_models():
     import jaxcaustics as jc
-    from jaxcaustics._ellipsoid import Ellipsoid
+    from jaxcaustics.scene.ellipsoid import Ellipsoid
 
     light = make_light(alpha=np.inf, beta=0.0, axis=(0, 0, -1))
     receiver = jc.PlaneReceiver((-0.3, 0.5, -0.6, 0.2), (40, 40))

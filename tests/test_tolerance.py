@@ -42,7 +42,7 @@ def scene_and_reference(kind, dense=False):
 
 def tolerances(kind):
     rows = [r for r in jc.accuracy_table()["kinds"][kind]["rows"] if r.get("choosable", True)]
-    return bench().tolerances_for(rows, jc._choose.DEFAULT_MARGIN)
+    return bench().tolerances_for(rows, jc.methods.choose.DEFAULT_MARGIN)
 
 
 def check(kind, which):

@@ -6,7 +6,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from jaxcaustics._transport import legendre, pushforward, transport_map
+from jaxcaustics.inverse.transport import legendre, pushforward, transport_map
 
 N = 48
 X = (np.arange(N) + 0.5) / N

@@ -158,8 +158,8 @@ def test_fold_overs_keep_their_flux(dtype, reconstruction):
     result = render(jnp.asarray(heights))
     # all but those of the outer ring, where the clamped bicubic turns flat beyond the
     # outermost samples
-    from jaxcaustics._methods.triangles import grid_triangles
-    from jaxcaustics._raster import signed_area
+    from jaxcaustics.methods.triangles.method import grid_triangles
+    from jaxcaustics.reconstruct.raster import signed_area
 
     area = np.asarray(signed_area(grid_triangles(result.photons.position[..., :2])))
     assert np.all(area.reshape(32, 32, 2)[2:-2, 2:-2] < 0)
@@ -313,7 +313,7 @@ def test_mesh_gradients_match_finite_differences(rng):
 @pytest.mark.parametrize("dtype", [np.float32, pytest.param(np.float64, marks=pytest.mark.slow)])
 def test_degenerate_triangles_keep_their_flux_and_stay_finite(dtype):
     """Photons that land on one point (a collapsed cell) or on a line."""
-    from jaxcaustics._methods.triangles import triangles_image
+    from jaxcaustics.methods.triangles.method import triangles_image
 
     n = 6
     xs = np.linspace(0.2, 0.8, n)
@@ -372,7 +372,7 @@ def deep_shadow():
 
 @pytest.mark.slow  # about 20 s; keeps the default run under 10 minutes
 def test_distance_map_projection_does_not_leak_behind_occluders():
-    from jaxcaustics._methods.triangles import CubeMapOptions
+    from jaxcaustics.methods.triangles.method import CubeMapOptions
 
     scene = occluded_sphere_scene()
     shadow = deep_shadow()
@@ -404,7 +404,7 @@ def test_distance_map_pipeline_agrees_with_exact_visibility():
     blurred relative L1 0.058 (64^2 texels per face) and 0.086 (128^2), flux 98%. Its
     errors are those of point-sampled Gouraud triangles on the cube faces and of the
     nearest-texel projection."""
-    from jaxcaustics._methods.triangles import CubeMapOptions
+    from jaxcaustics.methods.triangles.method import CubeMapOptions
 
     scene = sphere_scene(shape=(64, 64), light=jc.DirectionalLight.from_angles(10.0, 0.0))
     exact = np.asarray(jc.caustic_triangles(scene, photons=33).image)

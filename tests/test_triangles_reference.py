@@ -17,7 +17,7 @@ from test_triangles import lens_scene, sphere_scene
 
 import jaxcaustics as jc
 from jaxcaustics import reference
-from jaxcaustics._methods.triangles import splat_photons
+from jaxcaustics.methods.triangles.method import splat_photons
 
 
 def smooth_lens(zenith):

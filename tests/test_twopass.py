@@ -20,8 +20,8 @@ from conftest import make_scene
 
 import jaxcaustics as jc
 from jaxcaustics import reference
-from jaxcaustics._methods import twopass
-from jaxcaustics._render import MISSED_FLUX_WARNING
+from jaxcaustics.methods import twopass
+from jaxcaustics.methods.render import MISSED_FLUX_WARNING
 
 # the error of the library's tables, on a periodic sea's caustic (the image wraps)
 periodic_error = functools.partial(jc.image_error, boundary="periodic")

@@ -6,7 +6,7 @@ import trimesh
 
 import jaxcaustics as jc
 from jaxcaustics import reference
-from jaxcaustics._inverse.verify import relative_l2, solid_scene, verify_lens
+from jaxcaustics.inverse.verify import relative_l2, solid_scene, verify_lens
 
 
 def bumpy_lens():

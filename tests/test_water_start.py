@@ -1,4 +1,4 @@
-"""The transport start of `recover_surface` (`jaxcaustics._inverse.water_start`).
+"""The transport start of `recover_surface` (`jaxcaustics.inverse.water_start`).
 
 Targets are rendered by the NumPy reference (`reference.trace_water`, 16^2 photons a
 pixel), never by the model inverted; everything runs in float32, JAX's default.
@@ -12,10 +12,10 @@ import pytest
 
 import jaxcaustics as jc
 from jaxcaustics import reference
-from jaxcaustics._inverse import water_start
-from jaxcaustics._inverse.camera import camera_blur, deconvolve
-from jaxcaustics._inverse.recover import recover_surface
-from jaxcaustics._surface import height_and_gradient
+from jaxcaustics.inverse import water_start
+from jaxcaustics.inverse.camera import camera_blur, deconvolve
+from jaxcaustics.inverse.recover import recover_surface
+from jaxcaustics.scene.surface import height_and_gradient
 
 EXT = (0.0, 1.0, 0.0, 1.0)
 DEPTH = 0.5
@@ -198,7 +198,7 @@ def test_a_blurred_noisy_caustic_is_recovered_with_the_blur_given(sea):
 def test_the_results_window_comes_from_the_transports_reach():
     """After the start alone the result's two-pass window is the transport's reach plus
     half a pixel (no `auto_window` trace); a warm start or a fold fit asks for "auto"."""
-    from jaxcaustics._inverse.recover import _result_window
+    from jaxcaustics.inverse.recover import _result_window
 
     start = [{"stage": "transport", "reach": (3.05, 3.44)}, {}, {}]
     assert _result_window((), start, "auto", None) == (9, 8)

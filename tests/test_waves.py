@@ -8,7 +8,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from jaxcaustics._waves import GRAVITY, gaussian_bump, sine_sum, wave_heights
+from jaxcaustics.scene.waves import GRAVITY, gaussian_bump, sine_sum, wave_heights
 
 EXTENT = (-0.5, 1.5, 0.25, 1.25)  # 2 m x 1 m, off the origin
 SHAPE = (32, 48)  # (rows, cols): 6 pixels per shortest default wavelength along x

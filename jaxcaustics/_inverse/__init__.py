@@ -1,1 +1,0 @@
-"""Inverse design: recover a scene's parameters from the caustics it casts."""

@@ -1,1 +1,0 @@
-"""Caustic methods; each turns a scene into an irradiance image."""

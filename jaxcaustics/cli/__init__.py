@@ -1,0 +1,1 @@
+"""The ``jaxcaustics`` command: `main.py` (``render``) and `design.py` (``design``)."""

@@ -1,0 +1,319 @@
+"""Quadratic-cost optimal transport between two densities on one pixel grid.
+
+`transport_map` solves Monge's problem for the cost ``|x - y|^2 / 2`` between a source
+density ``mu`` and a target density ``nu`` given on the same ``(rows, cols)`` grid of
+square cells: the Brenier map ``T = grad(u)`` (``u`` convex) with ``T#mu = nu``. It is the
+core of lens design (`design_lens`: where each photon of the aperture must land) and of
+water recovery.
+
+**Algorithm: the back-and-forth method** (Jacobs & Léger, "A fast approach to optimal
+transport: the back-and-forth method", Numer. Math. 146, 2020). The dual problem is
+solved by gradient ascent in the ``H^1`` metric (one DCT Poisson solve per step)
+alternately on the two convex potentials ``phi`` (on the target grid, ``grad(phi)``
+maps the target to the source) and ``psi = phi*`` (on the source grid, the map itself),
+each ascent followed by Legendre transforms, so that the pair stays convex conjugate.
+Step sizes follow the paper's Armijo-Goldstein rule. The push-forward densities each
+step needs are gathered, not splatted: ``(grad psi)#mu (y) = mu(grad phi(y)) det
+D^2 phi(y)`` with finite differences of the conjugate potential evaluated one cell past
+the grid (the Legendre transform extends it exactly), so the step is one smooth,
+vectorised JAX program with no scatter, and it is jit-compiled once per grid shape.
+
+Why this method (from reading; the grid measurements are below): it works on grids
+(the target is an image), it needs no positive floor (zero density is an ordinary
+value of ``nu``: the potential is affine over dark regions and the map jumps across
+them), the cost per step is that of a few Legendre transforms and FFTs, and it
+converges in tens of steps from the identity. Entropic (Sinkhorn) transport, e.g.
+ott-jax, blurs the map by its regularisation and needs many iterations at small
+epsilon on 128^2 x 128^2 couplings; semi-discrete Newton (power diagrams) has no
+vectorised JAX implementation. Legendre transforms here are brute force, separable
+(two passes of ``O(n^3)`` for an ``n x n`` grid), batched over rows to bound memory.
+Measured on 2 CPU cores (float32): a 512^2 silhouette target takes 59 iterations in
+about 11 s, compilation included (0.19 s an iteration, four Legendre transforms each),
+with the push-forward misfit stalling at 0.085 (relative L1: sharp edges resolved to a
+pixel); a 128^2 one 2 to 4 s. Entropic transport was not measured here: the reasons
+against it above are from its method, not a run.
+
+Coordinates: cell ``(i, j)``'s centre is ``((j + 0.5) h, (i + 0.5) h)`` with
+``h = 1 / max(rows, cols)``: the grid covers ``[0, cols h] x [0, rows h]``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+import warnings
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from .._checks import check_bool, check_int, check_number, check_real_array
+from ..scene.surface import bilinear
+
+_ARMIJO = (0.95, 0.25, 0.75)  # step scale factor, lower and upper Armijo-Goldstein bounds
+_PATIENCE = 8  # iterations without improvement that count as a stall
+# no stall before this many iterations: the first ones can raise the misfit while the
+# step size adapts (measured: a silhouette at 512^2 from 0.8 up to 1.8, then down to 0.09)
+_MIN_ITERATIONS = 30
+# most back-and-forth iterations (the residual history is a buffer of the next power of
+# two: 10^12 overflowed the jitted loop's int32 counter after the checks)
+MAX_ITERATIONS = 1 << 20
+# most pixels of a density (4096^2: some 30 float64 arrays of this size, 4 GB)
+MAX_PIXELS = 1 << 24
+
+
+@dataclasses.dataclass
+class TransportMap:
+    """Result of `transport_map`.
+
+    - `map_x`, `map_y`: ``(rows + 1, cols + 1)`` NumPy arrays: where the grid's cell
+      corners go, in the grid's coordinates (``[0, cols h] x [0, rows h]``, see the
+      module docstring); corner ``(i, j)`` is at ``(j h, i h)``.
+    - `potential`: ``(rows, cols)``: ``psi``, the convex Brenier potential at the cell
+      centres (``T = grad(psi)``).
+    - `residual`: relative L1 difference between the target and the source pushed
+      forward by the final map (``sum |T#mu - nu| / sum nu``), per iteration.
+    - `iterations`: back-and-forth iterations taken.
+    - `converged`: whether `residual` fell to `tol` or stopped falling (`stall`) before
+      the iterations ran out.
+    """
+
+    map_x: np.ndarray
+    map_y: np.ndarray
+    potential: np.ndarray
+    residual: np.ndarray
+    iterations: int
+    converged: bool
+
+
+def _axis(n: int, h, ghost: int, dtype):
+    return (jnp.arange(-ghost, n + ghost, dtype=dtype) + 0.5) * h
+
+
+def _legendre_1d(f: jax.Array, x: jax.Array, s: jax.Array, batch: int) -> jax.Array:
+    """``max_j (s_i x_j - f[..., j])`` along the last axis of `f` (rows batched)."""
+    sx = s[:, None] * x[None, :]  # (len(s), len(x))
+    return jax.lax.map(lambda row: jnp.max(sx - row[None, :], axis=1), f, batch_size=batch)
+
+
+def legendre(f: jax.Array, h, ghost: int = 0) -> jax.Array:
+    """Discrete Legendre transform ``f*(s) = max_x (s . x - f(x))`` of `f` given at the
+    cell centres of its ``(rows, cols)`` grid, evaluated at the centres of the same grid
+    grown by `ghost` cells on every side: ``(rows + 2 ghost, cols + 2 ghost)``."""
+    rows, cols = f.shape
+    batch = max(1, min(rows, 2**23 // max(cols * (cols + 2 * ghost), 1)))
+    g = _legendre_1d(f, _axis(cols, h, 0, f.dtype), _axis(cols, h, ghost, f.dtype), batch)
+    # f*(s) = max_r (s_row x_r + g(r, s_col)) = max_r (s_row x_r - (-g))
+    batch = max(1, min(g.shape[1], 2**23 // max(rows * (rows + 2 * ghost), 1)))
+    out = _legendre_1d(-g.T, _axis(rows, h, 0, f.dtype), _axis(rows, h, ghost, f.dtype), batch)
+    return out.T
+
+
+def pushforward(potential: jax.Array, density: jax.Array, h, samples: int = 3):
+    """The density ``(grad p*)# density`` on a grid, gathered cell by cell: the mass of
+    `density` over the image of the cell under ``grad p``. `potential_ext` is the convex
+    potential ``p`` on the grid grown by one ghost cell per side,
+    ``(rows + 2, cols + 2)``; `density` lives on the grid ``grad p`` maps into. The image
+    of a cell is the quadrilateral of ``grad p`` at its corners (`_corner_map`); its
+    mass is its area times the mean of `density` at ``samples x samples`` points spread
+    over it (bilinearly in the corners). Compressed cells (a bright region of the other
+    side) and stretched ones (a jump across a dark region) are both measured, and the
+    masses of a monotone map sum to the total (no holes, no overlaps)."""
+    mx, my = _corner_map(potential, h)
+    xa, xb, xc, xd = mx[:-1, :-1], mx[:-1, 1:], mx[1:, 1:], mx[1:, :-1]
+    ya, yb, yc, yd = my[:-1, :-1], my[:-1, 1:], my[1:, 1:], my[1:, :-1]
+    area = 0.5 * ((xc - xa) * (yd - yb) - (xd - xb) * (yc - ya))
+
+    def add_sample(k, total):  # a loop, not 9 unrolled copies: compiled in 1 s, not 24
+        b = ((k // samples).astype(mx.dtype) + 0.5) / samples
+        a = ((k % samples).astype(mx.dtype) + 0.5) / samples
+        sx = (1 - b) * ((1 - a) * xa + a * xb) + b * ((1 - a) * xd + a * xc)
+        sy = (1 - b) * ((1 - a) * ya + a * yb) + b * ((1 - a) * yd + a * yc)
+        return total + bilinear(density, sx / h, sy / h)
+
+    total = jax.lax.fori_loop(0, samples * samples, add_sample, jnp.zeros_like(area))
+    return jnp.maximum(area, 0.0) / (h * h) * total / samples**2
+
+
+@jax.jit
+def neumann_poisson(rhs: jax.Array, dx, dy) -> jax.Array:
+    """Solve ``Laplacian(u) = rhs`` on a cell-centred grid with zero-flux (Neumann)
+    boundaries by a DCT-II; the mean of ``rhs`` is ignored and ``u`` has zero mean."""
+    rows, cols = rhs.shape
+    coef = jax.scipy.fft.dctn(rhs, type=2, norm="ortho")
+    ky = (2.0 * jnp.cos(jnp.pi * jnp.arange(rows) / rows) - 2.0) / dy**2
+    kx = (2.0 * jnp.cos(jnp.pi * jnp.arange(cols) / cols) - 2.0) / dx**2
+    lam = (ky[:, None] + kx[None, :]).at[0, 0].set(1.0)
+    return jax.scipy.fft.idctn((coef / lam).at[0, 0].set(0.0), type=2, norm="ortho")
+
+
+def _normalised(rho: jax.Array, mass) -> jax.Array:
+    total = jnp.sum(rho)
+    return rho * (mass / jnp.where(total > 0, total, 1.0))
+
+
+@functools.partial(jax.jit, static_argnames=("buffer",))
+def _back_and_forth(mu, nu, iterations, buffer: int, tol, sigma0, stall):
+    """`iterations` at most (traced: passes of different lengths share one compilation),
+    their residuals in a ``(buffer,)`` history (``buffer >= iterations``)."""
+    rows, cols = mu.shape
+    dtype = mu.dtype
+    h = jnp.asarray(1.0 / max(rows, cols), dtype)
+    xs = _axis(cols, h, 0, dtype)
+    ys = _axis(rows, h, 0, dtype)
+    half_sq = 0.5 * (xs[None, :] ** 2 + ys[:, None] ** 2)
+    mass = jnp.sum(nu)
+
+    def value(phi, psi):  # the dual functional, maximised
+        return jnp.sum((half_sq - phi) * nu + (half_sq - psi) * mu) * h * h
+
+    def half_step(p, rho, dens, other, sigma, old, dual):
+        """Ascent on potential `p` (gradient ``rho - dens``), then conjugate twice.
+        Returns the other side's potential (with a ghost ring), `p` again (convex),
+        the step's new dual value and step size, and the push-forward of `other`
+        onto the other side."""
+        work = -neumann_poisson(rho - dens, h, h)  # (-Laplacian)^-1 (rho - dens)
+        grad_sq = jnp.sum(work * (rho - dens)) * h * h
+        q = legendre(p + sigma * work, h)
+        p = legendre(q, h)
+        new = dual(p, q)
+        scale, lower, upper = _ARMIJO
+        diff = new - old
+        sigma = jnp.where(
+            diff > grad_sq * sigma * upper,
+            sigma / scale,
+            jnp.where(diff < grad_sq * sigma * lower, sigma * scale, sigma),
+        )
+        rho_other = _normalised(pushforward(q, other, h), mass)
+        return p, q, new, sigma, rho_other
+
+    def body(carry):
+        k, phi, psi, rho_y, sigma, old, residuals = carry
+        # phi (target side) ascent; rho on the source side
+        phi, psi, old, sigma, rho_x = half_step(phi, rho_y, nu, nu, sigma, old, value)
+        # psi (source side) ascent; rho on the target side
+        psi, phi, new, sigma, rho_y = half_step(
+            psi, rho_x, mu, mu, sigma, old, lambda a, b: value(b, a)
+        )
+        res = jnp.sum(jnp.abs(rho_y - nu)) / mass
+        return k + 1, phi, psi, rho_y, sigma, new, residuals.at[k].set(res)
+
+    def cond(carry):
+        k, *_, residuals = carry
+        last = jnp.where(k > 0, residuals[jnp.maximum(k - 1, 0)], jnp.inf)
+        # stalled: the last `_PATIENCE` iterations did not improve on the best before
+        # them by a fraction `stall`
+        index = jnp.arange(buffer)
+        earlier = jnp.min(jnp.where(index < k - _PATIENCE, residuals, jnp.inf))
+        recent = jnp.min(jnp.where((index >= k - _PATIENCE) & (index < k), residuals, jnp.inf))
+        moving = jnp.logical_or(k < _MIN_ITERATIONS, recent < earlier * (1 - stall))
+        return jnp.logical_and(k < iterations, jnp.logical_and(last > tol, moving))
+
+    phi = psi = half_sq
+    residuals = jnp.full((buffer,), jnp.nan, dtype)
+    carry = (0, phi, psi, mu, jnp.asarray(sigma0, dtype), value(phi, psi), residuals)
+    k, phi, psi, rho_y, sigma, _, residuals = jax.lax.while_loop(cond, body, carry)
+    return k, legendre(phi, h), residuals
+
+
+def _extrapolate_ends(a: jax.Array, axis: int) -> jax.Array:
+    """`a` grown by one entry at each end of `axis`, linearly extrapolated."""
+    a = jnp.moveaxis(a, axis, 0)
+    first, last = 2 * a[0] - a[1], 2 * a[-1] - a[-2]
+    return jnp.moveaxis(jnp.concatenate([first[None], a, last[None]]), 0, axis)
+
+
+@jax.jit
+def _corner_map(potential: jax.Array, h):
+    """``grad p`` at the corners of the cells of potential `p` ``(rows, cols)``:
+    differences across the interior cell edges, averaged over the two cells an edge
+    has at a corner, linearly extrapolated to the outer corners, and clamped into the
+    grid's domain. Returns ``(map_x, map_y)``, each ``(rows + 1, cols + 1)``."""
+    rows, cols = potential.shape
+    dx = _extrapolate_ends((potential[:, 1:] - potential[:, :-1]) / h, 1)  # (rows, cols+1)
+    dy = _extrapolate_ends((potential[1:, :] - potential[:-1, :]) / h, 0)  # (rows+1, cols)
+    mx = _extrapolate_ends(0.5 * (dx[1:] + dx[:-1]), 0)
+    my = _extrapolate_ends(0.5 * (dy[:, 1:] + dy[:, :-1]), 1)
+    return jnp.clip(mx, 0.0, cols * h), jnp.clip(my, 0.0, rows * h)
+
+
+def _check_density(a, name: str) -> np.ndarray:
+    d = check_real_array(a, name)
+    if d.ndim != 2 or min(d.shape) < 2:
+        raise ValueError(f"`{name}` must be a 2-D density of at least 2 x 2, got {d.shape}")
+    if d.size > MAX_PIXELS:
+        raise ValueError(f"`{name}` has {d.size} pixels, over the limit {MAX_PIXELS} (4096^2)")
+    d = d.astype(float)
+    if not np.all(np.isfinite(d)):
+        raise ValueError(f"`{name}` contains NaN or infinite values")
+    if np.any(d < 0):
+        raise ValueError(f"`{name}` must be non-negative")
+    if not np.any(d > 0):
+        raise ValueError(f"`{name}` is all zeros: there is no mass to transport")
+    return d
+
+
+def transport_map(
+    source,
+    target,
+    *,
+    iterations: int = 100,
+    tol: float = 1e-2,
+    stall: float = 5e-3,
+    warn: bool = True,
+) -> TransportMap:
+    """The optimal transport map (quadratic cost) from density `source` to `target`.
+
+    **Arguments:**
+
+    - `source`, `target`: non-negative ``(rows, cols)`` arrays (the same shape), any
+      scale: both are scaled to the same total mass. Zeros are allowed anywhere (black
+      regions of a target need no floor); an all-zero density is refused, and so is
+      one over `MAX_PIXELS` pixels.
+    - `iterations`: back-and-forth iterations at most (an int in ``[1, MAX_ITERATIONS]``).
+    - `tol`: stop when the relative L1 misfit of the pushed-forward source falls below
+      (a finite number >= 0).
+    - `stall`: stop when 8 iterations in a row did not bring the misfit below
+      ``(1 - stall)`` times its best before them: the grid's own floor (sharp edges
+      and points are resolved to a pixel: a silhouette at 512^2 stalls near 0.085, a
+      smooth pair near 0.02). A number in ``[0, 1)``.
+    - `warn`: warn (``warnings.warn``) when neither `tol` nor a stall ended the
+      iterations (they ran out).
+
+    **Returns:** a `TransportMap` (corner map, potential, residual history).
+    """
+    mu = _check_density(source, "source")
+    nu = _check_density(target, "target")
+    if mu.shape != nu.shape:
+        raise ValueError(f"`source` {mu.shape} and `target` {nu.shape} must have one shape")
+    iterations = check_int(iterations, "iterations", 1, MAX_ITERATIONS)
+    tol = check_number(tol, "tol", low=0.0)
+    stall = check_number(stall, "stall", low=0.0, high=1.0, high_open=True)
+    warn = check_bool(warn, "warn")
+    dtype = jnp.result_type(float)
+    mu = mu / mu.mean()
+    nu = nu / nu.mean()
+    sigma0 = 4.0 / max(mu.max(), nu.max())
+    buffer = max(128, 1 << (iterations - 1).bit_length())  # few distinct compilations
+    k, psi, residuals = _back_and_forth(
+        jnp.asarray(mu, dtype), jnp.asarray(nu, dtype), iterations, buffer, tol, sigma0, stall
+    )
+    h = 1.0 / max(mu.shape)
+    mx, my = _corner_map(psi, jnp.asarray(h, dtype))
+    k = int(k)
+    res = np.asarray(residuals)[:k]
+    converged = bool(k < iterations or res[-1] <= tol)
+    if warn and not converged:
+        warnings.warn(
+            f"transport_map: the push-forward misfit is {res[-1]:.3g} (relative L1) after "
+            f"{k} iterations and still falling; raise `iterations`",
+            stacklevel=2,
+        )
+    return TransportMap(
+        map_x=np.asarray(mx),
+        map_y=np.asarray(my),
+        potential=np.asarray(psi),
+        residual=res,
+        iterations=k,
+        converged=converged,
+    )

@@ -1,0 +1,209 @@
+"""Verification of a lens design with the independent NumPy reference.
+
+The exported solid (`lens_solid`: the height-field top as the renderer sees it, a flat
+bottom, side walls) is placed in a `MeshScene` and traced by
+`jaxcaustics.reference.trace_mesh`, which shares no code with the caustic-triangles
+forward model the design was optimised with. The same is done with the screen moved
+by plus and minus a few percent of the throw, and under the Sun (a disc of 0.53 degrees
+instead of a point at infinity), so a user sees how robust the design is.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import numpy as np
+
+from .. import reference
+from .._checks import check_int, check_real_array
+from ..scene.mesh import Mesh, MeshScene
+from ..scene.scene import DirectionalLight, LensScene, PlaneReceiver
+from .design import _check_mask
+from .export import lens_solid
+
+SUN_DIAMETER_DEG = 0.53
+# most photons per axis of the reference traces (16384^2: hours through the solid) and
+# most directions over the Sun's disc (each one a trace)
+MAX_PHOTONS_PER_AXIS = 1 << 14
+MAX_SUN_SAMPLES = 256
+
+
+def _image(value, name: str, shape=None) -> np.ndarray:
+    """`value` as a finite, non-negative float image (of `shape`), else a `ValueError`."""
+    a = check_real_array(value, name).astype(float)
+    if a.ndim == 0 or (shape is not None and a.shape != tuple(shape)):
+        want = f"the shape {tuple(shape)}" if shape is not None else "an image's shape"
+        raise ValueError(f"`{name}` must have {want}, got {a.shape}")
+    if a.size == 0 or not np.all(np.isfinite(a)) or a.min() < 0:
+        raise ValueError(f"`{name}` must be finite and non-negative")
+    return a
+
+
+def relative_l2(image, target, mask=None) -> float:
+    """``|a / mean(a) - b / mean(b)|_2 / |b / mean(b)|_2`` over `mask` (both images scaled
+    to unit mean: the error does not depend on overall brightness). Both finite,
+    non-negative, of one shape; `mask` boolean (or 0/1) of that shape; the target not
+    all zero (inside `mask`)."""
+    b = _image(target, "target")
+    a = _image(image, "image", b.shape)
+    if mask is not None:
+        m = _check_mask(mask, b.shape)
+        a, b = a[m], b[m]
+    if not b.max() > 0:
+        raise ValueError("`target` is zero everywhere (inside `mask`)")
+    a = a / a.mean() if a.mean() > 0 else a
+    b = b / b.mean()
+    return float(np.linalg.norm(a - b) / np.linalg.norm(b))
+
+
+def solid_scene(scene: LensScene, *, samples=None) -> MeshScene:
+    """The exported solid of `scene`'s lens, in metres at its place above the screen, as a
+    `MeshScene` with the same light, screen, index and Fresnel setting."""
+
+    solid = lens_solid(scene, samples=samples)  # millimetres, origin at the corner
+    x0, _, y0, _ = (float(v) for v in np.asarray(scene.surface.extent))
+    vertices = np.asarray(solid.vertices) / 1000.0 + [x0, y0, float(scene.throw)]
+    return MeshScene(
+        Mesh(vertices, np.asarray(solid.faces)),
+        scene.light,
+        scene.receiver,
+        ior=scene.ior,
+        fresnel=scene.fresnel,
+        interfaces=2,
+        normals="flat",
+    )
+
+
+def _sun_directions(light: DirectionalLight, samples: int) -> list[np.ndarray]:
+    """`samples` directions spread evenly (sunflower pattern) over the Sun's disc."""
+    d = np.asarray(light.direction, float)
+    d = d / np.linalg.norm(d)
+    helper = np.array([1.0, 0.0, 0.0]) if abs(d[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
+    e1 = np.cross(d, helper)
+    e1 /= np.linalg.norm(e1)
+    e2 = np.cross(d, e1)
+    radius = math.tan(math.radians(SUN_DIAMETER_DEG / 2))
+    golden = math.pi * (3.0 - math.sqrt(5.0))
+    out = []
+    for k in range(samples):
+        r = radius * math.sqrt((k + 0.5) / samples)
+        a = k * golden
+        v = d + r * (math.cos(a) * e1 + math.sin(a) * e2)
+        out.append(v / np.linalg.norm(v))
+    return out
+
+
+@dataclasses.dataclass(frozen=True)
+class Verification:
+    """Relative L2 errors (unit-mean images) of a design rendered by the reference.
+
+    - `nominal`: the exported solid, as specified.
+    - `screen_near`, `screen_far`: the screen moved towards / away from the lens by
+      `screen_shift` of the throw.
+    - `sun`: lit by a disc of the Sun's angular size (0.53 degrees) instead of a point.
+    - `image`: the nominal reference image.
+    """
+
+    nominal: float
+    screen_near: float
+    screen_far: float
+    sun: float
+    screen_shift: float
+    image: np.ndarray = dataclasses.field(repr=False)
+
+    def __str__(self) -> str:
+        pct = f"{100 * self.screen_shift:.0f}%"
+        return (
+            f"relative L2 error against the target (reference tracer, unit-mean images):\n"
+            f"  as designed            {self.nominal:.4f}\n"
+            f"  screen {pct} nearer      {self.screen_near:.4f}\n"
+            f"  screen {pct} farther     {self.screen_far:.4f}\n"
+            f"  Sun ({SUN_DIAMETER_DEG} deg disc)   {self.sun:.4f}"
+        )
+
+
+def verify_lens(
+    scene: LensScene,
+    target,
+    *,
+    mask=None,
+    photons_per_axis: int = 512,
+    screen_shift: float = 0.05,
+    sun_samples: int = 7,
+    samples=None,
+) -> Verification:
+    """Render the exported solid of `scene` with the reference and compare with `target`.
+
+    **Arguments:**
+
+    - `scene`: the designed `LensScene` (collimated light for the Sun test).
+    - `target`: the target image on `scene.receiver`'s grid, ``(rows, cols)``.
+    - `mask`: optional boolean ``(rows, cols)``: pixels the error is measured on.
+    - `photons_per_axis`: the reference's photon grid per axis (accuracy knob), at most
+      `MAX_PHOTONS_PER_AXIS`.
+    - `screen_shift`: relative change of the throw for the screen tests (0.05: 5%).
+    - `sun_samples`: directions over the Sun's disc (each traced with
+      ``photons_per_axis / sqrt(sun_samples)`` photons per axis), at most
+      `MAX_SUN_SAMPLES`.
+    - `samples`: the exported solid's top-surface grid (`lens_solid`).
+
+    **Returns:** a `Verification`.
+    """
+
+    if not isinstance(scene, LensScene):
+        raise ValueError(f"`scene` must be a LensScene, got {type(scene).__name__}")
+    # checked before any tracing: a NaN target made every error NaN, sun_samples=0 a
+    # ZeroDivisionError after the nominal trace
+    target = _image(target, "target", scene.receiver.shape)  # the screen's
+    if not target.max() > 0:
+        raise ValueError("`target` must be finite, non-negative and not all zero")
+    if mask is not None and not np.any(target[_check_mask(mask, target.shape)] > 0):
+        raise ValueError("`target` is zero everywhere inside `mask`")
+    check_int(photons_per_axis, "photons_per_axis", 2, MAX_PHOTONS_PER_AXIS)
+    check_int(sun_samples, "sun_samples", 1, MAX_SUN_SAMPLES)
+    number = isinstance(screen_shift, (int, float, np.number))
+    if isinstance(screen_shift, bool) or not (number and 0.0 < float(screen_shift) < 1.0):
+        raise ValueError(f"`screen_shift` must be a number in (0, 1), got {screen_shift!r}")
+    nominal_scene = solid_scene(scene, samples=samples)
+    nominal = reference.trace_mesh(nominal_scene, photons_per_axis)
+
+    def moved(factor: float) -> float:
+        throw = float(scene.throw) * factor
+        lens = LensScene(
+            scene.surface,
+            scene.light,
+            scene.receiver,
+            scene.thickness,
+            throw,
+            ior=scene.ior,
+            fresnel=scene.fresnel,
+        )
+        return relative_l2(
+            reference.trace_mesh(solid_scene(lens, samples=samples), photons_per_axis), target, mask
+        )
+
+    sun_error = float("nan")
+    if isinstance(scene.light, DirectionalLight):
+        per_axis = max(16, int(photons_per_axis / math.sqrt(sun_samples)))
+        images = []
+        for direction in _sun_directions(scene.light, sun_samples):
+            lit = MeshScene(
+                nominal_scene.generator,
+                DirectionalLight(direction),
+                PlaneReceiver(scene.receiver.extent, scene.receiver.shape),
+                ior=scene.ior,
+                fresnel=scene.fresnel,
+                interfaces=2,
+                normals="flat",
+            )
+            images.append(reference.trace_mesh(lit, per_axis))
+        sun_error = relative_l2(np.mean(images, axis=0), target, mask)
+    return Verification(
+        nominal=relative_l2(nominal, target, mask),
+        screen_near=moved(1.0 - screen_shift),
+        screen_far=moved(1.0 + screen_shift),
+        sun=sun_error,
+        screen_shift=screen_shift,
+        image=nominal,
+    )

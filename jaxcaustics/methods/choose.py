@@ -1,0 +1,397 @@
+"""Choosing a method and its knobs for an accuracy budget: ``render(scene, tolerance=t)``.
+
+The choice reads accuracy-time tables measured by ``benchmarks/bench_accuracy.py`` and
+stored with the package (``jaxcaustics/data/accuracy.json``): for each scene kind (height-
+field water, lens slab, mesh refractor, moving light) one benchmark scene, and for every
+method and knob setting that runs on it, its error against the NumPy reference (relative
+L1 after a 1-pixel Gaussian blur of both images) and its time per render after
+compilation. Among the settings whose method can do everything the scene calls for
+(`method_support`), the fastest whose measured error times `margin` is within the
+tolerance is picked.
+
+The tables are measurements on one scene per kind and one machine: an error measured on
+the benchmark scene is an estimate for another scene of the same kind (the `margin`
+absorbs some of the difference), and times scale with the receiver's pixel count and the
+machine.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+import json
+import math
+from importlib import resources
+from typing import Any
+
+import numpy as np
+
+from .. import reference
+from .._checks import check_choice, check_number, check_real_array
+from ..scene.ellipsoid import EllipsoidScene
+from ..scene.mesh import MeshScene
+from ..scene.scene import DirectionalLight, LensScene, WaterScene
+
+#: scene type -> the kind of scene its accuracy table was measured on
+SCENE_KINDS = {
+    WaterScene: "water",
+    LensScene: "lens",
+    MeshScene: "mesh",
+    EllipsoidScene: "moving_light",
+}
+#: default safety factor: a setting is chosen only if its measured error times this is
+#: within the tolerance. On the held-out scenes of ``benchmarks/bench_tolerance.py`` the
+#: choosable settings' errors were at most 1.9 times their tabled errors.
+DEFAULT_MARGIN = 2.0
+#: a mesh is sphere-like (caustic spot lights apply) if every vertex lies within this
+#: relative distance of the ellipsoid through its principal extents, and that
+#: ellipsoid's longest axis is at most `SPHERE_LIKE_ASPECT` times its shortest
+SPHERE_LIKE_DEVIATION = 0.1
+#: the methods `render` knows (its ``METHODS``), in the order of `method_support`
+METHOD_NAMES = ("twopass", "triangles", "caustics_mapping", "adaptive", "spot_lights")
+SPHERE_LIKE_ASPECT = 3.0
+
+
+@dataclasses.dataclass(frozen=True)
+class Choice:
+    """What ``render(scene, tolerance=...)`` picked, and why.
+
+    - `kind`: the scene kind whose table was used (``"water"``, ``"lens"``, ``"mesh"``,
+      ``"moving_light"``).
+    - `method`, `knobs`: what is passed to `render` (knobs resolved for the scene's
+      receiver).
+    - `as_mesh`: ``None``, or ``{"subdivisions": k}`` when an `EllipsoidScene` is
+      rendered as the triangle mesh `Ellipsoid.to_mesh(k)` in a `MeshScene`.
+    - `tolerance`, `margin`: the request.
+    - `expected_error`: the error this setting measured on the kind's benchmark scene.
+    - `expected_time_s`: its measured time per render (after compilation), seconds,
+      scaled by the ratio of the scene's pixel count to the benchmark's (a rough guide:
+      machines differ).
+    - `table_time_s`, `table_pixels`: the measurement as stored.
+    - `candidates`: how many settings of the table the scene's effects allow, and
+      `meeting`: how many of them meet the tolerance.
+    - `excluded`: ``{method: reason}`` for the table's methods the scene rules out.
+    - `row`: the table row chosen, as stored.
+    """
+
+    kind: str
+    method: str
+    knobs: dict[str, Any]
+    as_mesh: dict[str, int] | None
+    tolerance: float
+    margin: float
+    expected_error: float
+    expected_time_s: float
+    table_time_s: float
+    table_pixels: tuple[int, int]
+    candidates: int
+    meeting: int
+    excluded: dict[str, str]
+    row: dict[str, Any]
+
+    def __str__(self) -> str:
+        knobs = ", ".join(f"{k}={v!r}" for k, v in self.knobs.items())
+        mesh = f" on its {self.as_mesh['subdivisions']}-subdivision mesh" if self.as_mesh else ""
+        return (
+            f"{self.method}({knobs}){mesh} for a {self.kind} scene: expected error "
+            f"{self.expected_error:.3g} (tolerance {self.tolerance:.3g}, margin "
+            f"{self.margin:g}) in about {self.expected_time_s:.3g} s per render after "
+            f"compilation ({self.meeting} of {self.candidates} measured settings meet it)"
+        )
+
+
+def image_error(image, reference, blur: float = 1.0, boundary: str = "constant") -> float:
+    """The accuracy tables' error: ``sum |g(image) - g(reference)| / sum |g(reference)|``,
+    relative L1 after a Gaussian blur ``g`` of `blur` pixels (standard deviation) of
+    both images. The one image error of the library, its tests, benchmarks and figures.
+
+    **Arguments:** `image`, `reference`: arrays of the same shape ``(rows, cols)`` or
+    ``(rows, cols, channels)`` (channels are blurred separately); `blur` >= 0, pixels
+    (0: no blur); `boundary`: beyond the image, ``"constant"`` (zero: a receiver with
+    nothing around it) or ``"periodic"`` (the image wraps: a periodic sea's caustic).
+    """
+    from scipy.ndimage import gaussian_filter
+
+    a = check_real_array(image, "image").astype(float)
+    b = check_real_array(reference, "reference").astype(float)
+    if a.shape != b.shape or a.ndim not in (2, 3):
+        raise ValueError(
+            f"`image` {a.shape} and `reference` {b.shape} must have one shape (rows, cols"
+            "[, channels])"
+        )
+    for name, array in (("image", a), ("reference", b)):
+        if not np.all(np.isfinite(array)):
+            raise ValueError(f"`{name}` contains NaN or infinite values")
+    blur = check_number(blur, "blur", low=0.0)
+    mode = {"constant": "constant", "periodic": "wrap"}[
+        check_choice(boundary, "boundary", ("constant", "periodic"))
+    ]
+    sigma = (blur, blur, 0.0)[: a.ndim]
+    ga = gaussian_filter(a, sigma, mode=mode)
+    gb = gaussian_filter(b, sigma, mode=mode)
+    total = np.abs(gb).sum()
+    if not total > 0:
+        raise ValueError("`reference` is black: the relative error is undefined")
+    return float(np.abs(ga - gb).sum() / total)
+
+
+def reference_image(scene, **knobs) -> np.ndarray:
+    """The NumPy reference's image of `scene`, float64: `reference.trace_water`,
+    `trace_lens`, `trace_mesh` or `trace_ellipsoid` by the scene's kind, with `knobs`
+    (``photons_per_axis``: per pixel side for water, across the object otherwise)."""
+    import inspect
+
+    tracer = {
+        "water": reference.trace_water,
+        "lens": reference.trace_lens,
+        "mesh": reference.trace_mesh,
+        "moving_light": reference.trace_ellipsoid,
+    }[scene_kind(scene)]
+    names = set(inspect.signature(tracer).parameters) - {"scene", "return_stats"}
+    unknown = sorted(set(knobs) - names)
+    if unknown:
+        raise ValueError(
+            f"`{unknown[0]}` is not a knob of {tracer.__name__} (its knobs: "
+            f"{', '.join(sorted(names))})"
+        )
+    return np.asarray(tracer(scene, **knobs))
+
+
+def allowed_rows(scene, rows: list[dict]) -> tuple[list[dict], dict[str, str]]:
+    """The table `rows` whose method can render `scene` (`method_support`; rows with
+    ``as_mesh`` only for an `EllipsoidScene`, judged on its mesh), and ``{method:
+    reason}`` for the methods ruled out."""
+    meshes: dict[int, MeshScene] = {}  # one mesh per subdivision level
+    allowed, excluded = [], {}
+    for row in rows:
+        target = scene
+        if row.get("as_mesh"):
+            if not isinstance(scene, EllipsoidScene):
+                continue
+            k = row["as_mesh"]["subdivisions"]
+            if k not in meshes:
+                meshes[k] = as_mesh_scene(scene, k)
+            target = meshes[k]
+        reason = method_support(row["method"], target)
+        if reason is None:
+            allowed.append(row)
+        else:
+            excluded.setdefault(row["method"], reason)
+    return allowed, excluded
+
+
+@functools.cache
+def _packaged_table() -> dict:
+    text = resources.files("jaxcaustics").joinpath("data/accuracy.json").read_text()
+    return json.loads(text)
+
+
+def accuracy_table() -> dict:
+    """The stored accuracy-time table (see ``benchmarks/bench_accuracy.py``), as a dict:
+    ``table["kinds"][kind]["rows"]`` are the measured settings of that scene kind."""
+    return _packaged_table()
+
+
+def scene_kind(scene) -> str:
+    """The kind of `scene` for the accuracy tables (see `SCENE_KINDS`)."""
+    for cls, kind in SCENE_KINDS.items():
+        if isinstance(scene, cls):
+            return kind
+    raise ValueError(
+        "`scene` must be a WaterScene, LensScene, MeshScene or EllipsoidScene, got "
+        f"{type(scene).__name__}"
+    )
+
+
+def _sphere_like(vertices: np.ndarray) -> str | None:
+    # the principal extents of the vertices give the ellipsoid they should lie on
+    """``None`` if the points lie on an ellipsoid of moderate aspect (whose refracted rays
+    focus near moving points), else why not."""
+    centre = vertices.mean(axis=0)
+    local = vertices - centre
+    _, _, axes = np.linalg.svd(local, full_matrices=False)
+    coords = local @ axes.T
+    radii = 0.5 * (coords.max(axis=0) - coords.min(axis=0))
+    if radii.min() <= 0:
+        return "the object is flat"
+    aspect = radii.max() / radii.min()
+    if aspect > SPHERE_LIKE_ASPECT:
+        return f"the object is elongated (aspect {aspect:.3g} > {SPHERE_LIKE_ASPECT:g})"
+    mid = 0.5 * (coords.max(axis=0) + coords.min(axis=0))
+    deviation = np.abs(np.linalg.norm((coords - mid) / radii, axis=1) - 1.0).max()
+    if deviation > SPHERE_LIKE_DEVIATION:
+        return (
+            f"the object is not sphere-like (vertices {deviation:.2g} off the ellipsoid "
+            "through its extents; caustic spot lights need rays focusing near points, "
+            "Liu et al. Sect. 6: a cylinder focuses on a line)"
+        )
+    return None
+
+
+def method_support(method: str, scene) -> str | None:
+    """``None`` if `method` can render everything `scene` calls for, else the reason it
+    cannot (an effect the method does not simulate, or a shape it cannot represent).
+    `method`: one of ``"twopass"``, ``"triangles"``, ``"caustics_mapping"``,
+    ``"adaptive"``, ``"spot_lights"``; `scene`: a scene of a kind in `SCENE_KINDS`."""
+    check_choice(method, "method", METHOD_NAMES)
+    scene_kind(scene)
+    fx = scene.effects
+    if method == "twopass":
+        if not isinstance(scene, WaterScene):
+            return "two-pass caustics take a height-field water surface only"
+        return None
+    if method == "triangles":
+        if isinstance(scene, (LensScene, MeshScene)):
+            return None
+        return "caustic triangles take lens slabs and meshes"
+    if method in ("caustics_mapping", "adaptive"):
+        if not isinstance(scene, MeshScene):
+            return "caustic maps take meshes"
+        if fx.occlusion:
+            return "caustic maps do not test occlusion (the scene has occluders)"
+        if fx.reflection:
+            return "caustic maps refract only (the mesh is a mirror)"
+        return None
+    if method == "spot_lights":
+        if not isinstance(scene, (EllipsoidScene, MeshScene)):
+            return "caustic spot lights take glass ellipsoids and meshes"
+        if not isinstance(scene.light, DirectionalLight):
+            return "caustic spot lights are fitted to parallel light"
+        if isinstance(scene, MeshScene):
+            if fx.reflection:
+                return "caustic spot lights refract only (the mesh is a mirror)"
+            if fx.occlusion:
+                return "caustic spot lights shadow with ellipsoid occluders only"
+            return _sphere_like(np.asarray(scene.generator.vertices, dtype=float))
+        radii = np.asarray(scene.generator.radii, dtype=float)
+        aspect = radii.max() / radii.min()
+        if aspect > SPHERE_LIKE_ASPECT:
+            return f"the ellipsoid is elongated (aspect {aspect:.3g} > {SPHERE_LIKE_ASPECT:g})"
+        return None
+
+
+def as_mesh_scene(scene: EllipsoidScene, subdivisions: int) -> MeshScene:
+    """`scene` with its ellipsoid (and ellipsoid occluders) as triangle meshes
+    (`Ellipsoid.to_mesh(subdivisions)`), for the mesh methods."""
+    return MeshScene(
+        scene.generator.to_mesh(subdivisions),
+        scene.light,
+        scene.receiver,
+        ior=scene.ior,
+        fresnel=scene.fresnel,
+        interfaces=scene.interfaces,
+        occluders=tuple(o.to_mesh(subdivisions) for o in scene.occluders),
+    )
+
+
+def resolve_knobs(
+    method: str, knobs: dict, shape: tuple[int, int], table_pixels: tuple[int, int]
+) -> dict:
+    """A table row's knobs for a receiver of `shape` ``(rows, cols)``.
+
+    Photon grids are stored per pixel, ``{"per_pixel": f}``: they become ``round(f *
+    max(rows, cols))``, and never fewer than the ``round(f * max(table_pixels))``
+    measured (the detail a grid resolves is in the scene, not only in the receiver's
+    pixels: fewer photons than measured would not keep the measured error). Adaptive
+    caustic maps' grids are then rounded up to their `base` (64) times a power of two.
+    Other knobs are passed as stored.
+    """
+    side, table_side = max(shape), max(table_pixels)
+    out = {}
+    for name, value in knobs.items():
+        if isinstance(value, dict):
+            value = max(round(value["per_pixel"] * side), round(value["per_pixel"] * table_side))
+            if method == "adaptive":
+                base = knobs.get("base", 64)
+                value = base * 2 ** max(0, math.ceil(math.log2(value / base)))
+        out[name] = value
+    return out
+
+
+def _check_tolerance(tolerance, margin) -> tuple[float, float]:
+    return (
+        check_number(tolerance, "tolerance", low=0.0, low_open=True),
+        check_number(margin, "margin", low=1.0),
+    )
+
+
+def choose_method(
+    scene,
+    tolerance: float,
+    *,
+    method: str | None = None,
+    margin: float = DEFAULT_MARGIN,
+    table: dict | None = None,
+) -> Choice:
+    """The fastest measured method and knobs expected to render `scene` within
+    `tolerance`.
+
+    **Arguments:**
+
+    - `scene`: a `WaterScene`, `LensScene`, `MeshScene` or `EllipsoidScene`.
+    - `tolerance`: the largest acceptable error against the reference: relative L1
+      after a Gaussian blur of 1 pixel of both images (``sum |blur(image) -
+      blur(reference)| / sum blur(reference)``).
+    - `method`: restrict the choice to one method's knobs.
+    - `margin`: a setting qualifies if its measured error times `margin` is within
+      `tolerance` (>= 1; default 2), for scenes harder than the benchmark's.
+    - `table`: an accuracy table in the schema of `accuracy_table()` (default: the
+      stored one).
+
+    **Returns:** a `Choice`. Raises `ValueError` if no setting the scene allows meets
+    the tolerance (naming the smallest error measured) or the scene's kind has no table.
+    """
+    tolerance, margin = _check_tolerance(tolerance, margin)
+    kind = scene_kind(scene)
+    if method is not None:
+        check_choice(method, "method", METHOD_NAMES)
+    if table is not None and not isinstance(table, dict):
+        raise ValueError(
+            f"`table` must be a dict in the schema of accuracy_table(), got {type(table).__name__}"
+        )
+    table = accuracy_table() if table is None else table
+    if kind not in table.get("kinds", {}):
+        raise ValueError(f"the accuracy table has no {kind!r} scenes; pass `method=` instead")
+    if isinstance(scene, MeshScene) and scene.effects.reflection:
+        raise ValueError(
+            "the accuracy table's mesh scene is a refractor; mirrors are not measured: pass "
+            "`method=` (e.g. 'triangles') instead of `tolerance`"
+        )
+    entry = table["kinds"][kind]
+    rows = [r for r in entry["rows"] if r.get("choosable", True)]
+    if method is not None:
+        rows = [r for r in rows if r["method"] == method]
+        if not rows:
+            raise ValueError(f"`method` {method!r} has no measured settings for {kind} scenes")
+    allowed, excluded = allowed_rows(scene, rows)
+    if not allowed:
+        raise ValueError(f"no measured method can render this {kind} scene: {excluded}")
+    meeting = [r for r in allowed if r["error"] * margin <= tolerance]
+    if not meeting:
+        best = min(allowed, key=lambda r: r["error"])
+        raise ValueError(
+            f"`tolerance` {tolerance:g} is below what any measured setting reaches on "
+            f"{kind} scenes with margin {margin:g}: the smallest error is "
+            f"{best['error']:.3g} ({best['method']} {best['knobs']}); pass a larger "
+            "tolerance, or use the reference tracer"
+        )
+    row = min(meeting, key=lambda r: (r["time_s"], r["error"]))
+    shape = tuple(scene.receiver.shape)
+    table_pixels = tuple(entry["pixels"])
+    scale = (shape[0] * shape[1]) / (table_pixels[0] * table_pixels[1])
+    return Choice(
+        kind=kind,
+        method=row["method"],
+        knobs=resolve_knobs(row["method"], row["knobs"], shape, table_pixels),
+        as_mesh=row.get("as_mesh") or None,
+        tolerance=tolerance,
+        margin=margin,
+        expected_error=float(row["error"]),
+        expected_time_s=float(row["time_s"]) * scale,
+        table_time_s=float(row["time_s"]),
+        table_pixels=table_pixels,  # type: ignore[arg-type]
+        candidates=len(allowed),
+        meeting=len(meeting),
+        excluded=excluded,
+        row=row,
+    )

@@ -1,0 +1,427 @@
+"""Yuksel & Keyser's two-pass caustics for height-field water over a flat ground.
+
+C. Yuksel, J. Keyser, "Fast Real-time Caustics from Height Fields" (2009).
+
+For every caustic-map pixel ``P_G`` the method gathers the light refracted through a
+window of the water surface around the pixel's *illumination centre*
+``P_C = P_G + h L'`` (``L'``: the light refracted by the flat rest surface, ``h``: the
+rest depth). It runs as
+
+- a **pre-pass**: one light sample per caustic-map pixel, spaced by the pixel size on
+  the rest plane around the illumination centres; each sample's ray is intersected with
+  the moving surface (a few Newton steps, `hit_iterations`), refracted, and landed on
+  the ground;
+- **pass 1**: for every pixel, the `samples_x` (N) samples along ``x`` around its
+  illumination centre deposit pixel-sized squares (tent overlaps) into ``M + 1``
+  channels, one per neighbouring pixel along ``y``;
+- **pass 2**: the sum along ``y`` of the channels that belong to each pixel.
+
+The window only sees light that lands within about ``N/2`` pixels (``x``) and ``M/2``
+pixels (``y``) of the illumination centre; what falls outside is reported as the
+missed-flux fraction, and ``samples_x="auto"`` picks the window from the largest
+displacement so nothing is silently lost.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+import math
+from collections.abc import Sequence
+from typing import ClassVar, Literal
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jaxtyping import Array, Float
+
+from .._checks import check_fits, check_int, check_memory_limit
+from ..scene.checks import checks_scene_values
+from ..scene.scene import WaterScene
+from ..scene.surface import MAX_HIT_ITERATIONS, ray_surface_hit
+from ..trace.optics import fresnel_transmittance, refract, refract_components, tir_possible
+from .base import Method, channels_last
+
+# Largest automatic window (pixels on each side); beyond it the method is the wrong tool.
+MAX_AUTO_HALF_WINDOW = 32
+# memory model, numbers of the scene's dtype per pre-pass sample of the padded grid and
+# per gathered partial (XLA's compiled temporaries on CPU: 24-26 per sample for windows
+# up to 15 x 15, up to 87 for 63 x 63, which the partials term bounds)
+_SAMPLE_FLOATS = 32
+
+
+def _tent(u: Array) -> Array:
+    """Overlap length of two unit intervals whose centres are ``u`` apart."""
+    return jnp.maximum(0.0, 1.0 - jnp.abs(u))
+
+
+def _window_fraction(u: Array, half: int) -> Array:
+    """Fraction of a unit tent centred at ``u`` that falls on the ``2 half + 1`` pixels."""
+    return jnp.clip(half + 1.0 - jnp.abs(u), 0.0, 1.0)
+
+
+class PrePass(eqx.Module):
+    """Ground hits of the pre-pass samples (``S x S`` per caustic-map pixel, padded).
+
+    Shapes are ``(channels, S * S, rows + M, cols + N - 1)``: for each of the ``S * S``
+    sub-pixel phases, the padded grid of one sample per pixel.
+
+    - `shift_x`, `shift_y`: where each sample lands, relative to the centre of the
+      pixel it starts from (the pixel it lands on under flat water), in pixels.
+    - `flux`: relative flux carried (1 for flat water with Fresnel off; Fresnel
+      transmittance when on; 0 where total internal reflection loses it).
+    """
+
+    shift_x: Float[Array, "channels phases rows cols"]
+    shift_y: Float[Array, "channels phases rows cols"]
+    flux: Float[Array, "channels phases rows cols"]
+
+
+def prepass(
+    scene: WaterScene, half_x: int, half_y: int, iterations: int, supersample: int = 1
+) -> PrePass:
+    """Trace ``S x S`` samples per caustic-map pixel (padded by the window) to the ground."""
+    rows, cols = scene.receiver.shape
+    x0, _, y0, _ = scene.receiver.extent
+    px, py = scene.receiver.pixel_size
+    dtype = scene.surface.heights.dtype
+    phase = (jnp.arange(supersample, dtype=dtype) + 0.5) / supersample - 0.5
+    phase_y, phase_x = (p.reshape(-1, 1, 1) for p in jnp.meshgrid(phase, phase, indexing="ij"))
+    gx = x0 + (jnp.arange(-half_x, cols + half_x, dtype=dtype) + 0.5) * px
+    gy = y0 + (jnp.arange(-half_y, rows + half_y, dtype=dtype) + 0.5) * py
+    gx, gy = jnp.meshgrid(gx, gy)  # pixel centres (rows + M, cols + N - 1)
+    sample_x, sample_y = gx + phase_x * px, gy + phase_y * py  # (S * S, rows + M, ...)
+    d = scene.light.unit_direction.astype(dtype)
+    up = jnp.array([0.0, 0.0, 1.0], dtype=dtype)
+
+    shifts_x, shifts_y, fluxes = [], [], []
+    for ior in scene.iors:
+        eta = 1.0 / ior
+        # illumination centres: where flat water sends light to the pixel centres
+        flat_t, _ = refract(d, up, eta)
+        offset = scene.rest_depth / flat_t[2]
+        cx, cy = sample_x + offset * flat_t[0], sample_y + offset * flat_t[1]
+
+        hit_x, hit_y, hit_z, hx, hy = ray_surface_hit(
+            scene.surface, scene.rest_depth, cx, cy, (d[0], d[1], d[2]), iterations
+        )
+        inv_norm = jax.lax.rsqrt(1.0 + hx * hx + hy * hy)
+        normal = (-hx * inv_norm, -hy * inv_norm, inv_norm)
+        t_dir, tir, cos_i = refract_components((d[0], d[1], d[2]), normal, eta)
+        going_down = t_dir[2] < 0.0
+        valid = going_down & (hit_z > 0.0)  # a trough below the ground casts nothing
+        if tir_possible(eta):  # water of index < 1 (traced only there)
+            valid = valid & ~tir
+        s = hit_z / -jnp.where(going_down, t_dir[2], -1.0)
+        ground_x = hit_x + s * t_dir[0]
+        ground_y = hit_y + s * t_dir[1]
+        flux = valid.astype(dtype)
+        if scene.fresnel:
+            flux = flux * fresnel_transmittance(cos_i, eta)
+        shifts_x.append(jnp.where(valid, (ground_x - gx) / px, 0.0))
+        shifts_y.append(jnp.where(valid, (ground_y - gy) / py, 0.0))
+        fluxes.append(flux)
+    return PrePass(jnp.stack(shifts_x), jnp.stack(shifts_y), jnp.stack(fluxes))
+
+
+def _tent_slope(u: Array) -> Array:
+    """Derivative of `_tent`; at its kinks (``u = -1, 0, 1``) the derivative from the
+    right, the same for every sample, so that at flat water (every shift a whole number
+    of pixels) the light one pixel loses another gains and the gradient is the
+    directional derivative for increasing shifts (a symmetric choice, 0 at ``u = 0``
+    and at ``|u| = 1``, gave a zero gradient there)."""
+    return jnp.where((u >= 0.0) & (u < 1.0), -1.0, jnp.where((u >= -1.0) & (u < 0.0), 1.0, 0.0))
+
+
+def _pass1(shift_x: Array, shift_y: Array, flux: Array, half_x: int, half_y: int) -> Array:
+    """Pass 1 for one channel: ``(M + 1, rows + M, cols)`` partial sums.
+
+    Channel ``k`` of row ``r`` holds the light that the ``N`` samples of row ``r``
+    around each column send to the pixel ``k - M/2`` rows away.
+    """
+    cols = shift_x.shape[1] - 2 * half_x
+    out = [jnp.zeros(shift_x.shape[:1] + (cols,), shift_x.dtype) for _ in range(2 * half_y + 1)]
+    for dx in range(-half_x, half_x + 1):
+        window = slice(half_x + dx, half_x + dx + cols)
+        wx = flux[:, window] * _tent(shift_x[:, window] + dx)
+        for k in range(2 * half_y + 1):
+            out[k] = out[k] + wx * _tent(shift_y[:, window] - (k - half_y))
+    return jnp.stack(out)
+
+
+def _pass2(partial: Array, half_y: int) -> Array:
+    """Pass 2: each pixel sums its ``M + 1`` channels from the rows they came from."""
+    rows = partial.shape[1] - 2 * half_y
+    image = jnp.zeros((rows, partial.shape[2]), partial.dtype)
+    for k in range(2 * half_y + 1):
+        dy = k - half_y
+        image = image + partial[k, half_y - dy : half_y - dy + rows]
+    return image
+
+
+@functools.partial(jax.custom_jvp, nondiff_argnums=(3, 4))
+def _gather_window(shift_x, shift_y, flux, half_x: int, half_y: int) -> Array:
+    return _pass2(_pass1(shift_x, shift_y, flux, half_x, half_y), half_y)
+
+
+@_gather_window.defjvp
+def _gather_window_jvp(half_x, half_y, primals, tangents):
+    """The same window sums with the tents' slopes, written so that each term is
+    *padded* onto a common grid and cropped once: JAX transposes a pad into a slice, so
+    the reverse pass gathers from the cotangent image instead of padding 49 arrays."""
+    shift_x, shift_y, flux = primals
+    t_x, t_y, t_f = tangents
+    rows, cols = shift_x.shape[0] - 2 * half_y, shift_x.shape[1] - 2 * half_x
+    total = jnp.zeros((rows + 4 * half_y, cols + 4 * half_x), shift_x.dtype)
+    for dx in range(-half_x, half_x + 1):
+        ux = shift_x + dx
+        wx = flux * _tent(ux)
+        t_wx = t_f * _tent(ux) + flux * _tent_slope(ux) * t_x
+        for dy in range(-half_y, half_y + 1):
+            uy = shift_y - dy
+            term = t_wx * _tent(uy) + wx * _tent_slope(uy) * t_y
+            # sample (r, c) reaches pixel (r - M/2 + dy, c - N/2 - dx)
+            pads = ((half_y + dy, half_y - dy), (half_x - dx, half_x + dx))
+            total = total + jnp.pad(term, pads)
+    tangent = total[2 * half_y : 2 * half_y + rows, 2 * half_x : 2 * half_x + cols]
+    return _gather_window(*primals, half_x, half_y), tangent
+
+
+@functools.partial(jax.checkpoint, static_argnums=(3, 4))
+def gather_window(shift_x, shift_y, flux, half_x: int, half_y: int) -> Array:
+    """Passes 1 and 2: the irradiance image ``(rows, cols)`` from the pre-pass samples.
+
+    Sample ``(r, c)`` of the padded grid ``(rows + M, cols + N - 1)`` deposits a
+    pixel-sized square (tent overlaps) centred ``(shift_x, shift_y)`` pixels from the
+    centre of pixel ``(r - M/2, c - N/2)``, onto the pixels of its window. Derivatives
+    (forward and reverse) are hand-written and recomputed in the reverse pass
+    (`jax.checkpoint`) rather than stored, which keeps the gradient cheap.
+    """
+    return _gather_window(shift_x, shift_y, flux, half_x, half_y)
+
+
+class TwoPassResult(eqx.Module):
+    """Output of `two_pass`.
+
+    - `image`: irradiance, ``(rows, cols)`` or ``(rows, cols, channels)``.
+    - `missed_flux_fraction`: per channel, shape ``(channels,)``: the fraction of the
+      incident flux that lands outside the window and is therefore missing from the
+      image.
+    """
+
+    image: Array
+    missed_flux_fraction: Array
+
+
+def _window_knob(value, name: str, odd: bool) -> int:
+    """`samples_x` (N: odd, >= 1) or `channels_y` (M: even, >= 0) as an int, or a
+    `ValueError` naming it."""
+    try:
+        good = check_int(value, name, 1 if odd else 0) % 2 == int(odd)
+    except ValueError:
+        good = False
+    if not good:
+        kind = "(N) must be an odd positive int" if odd else "(M) must be an even int >= 0"
+        raise ValueError(f"`{name}` {kind} or 'auto', got {value!r}")
+    return int(value)
+
+
+def _is_auto(value) -> bool:
+    return isinstance(value, str) and value == "auto"
+
+
+def _check_window(samples_x, channels_y) -> tuple[int, int]:
+    """The half widths ``(N // 2, M // 2)`` of a checked window."""
+    return (
+        _window_knob(samples_x, "samples_x", odd=True) // 2,
+        _window_knob(channels_y, "channels_y", odd=False) // 2,
+    )
+
+
+def _check_knobs(scene, hit_iterations, supersample, memory_limit) -> tuple[int, int, int]:
+    """The knobs `two_pass` and `auto_window` share, checked."""
+    if not isinstance(scene, WaterScene):
+        raise ValueError(f"`scene` must be a WaterScene, got {type(scene).__name__}")
+    return (
+        check_int(hit_iterations, "hit_iterations", 0, MAX_HIT_ITERATIONS),
+        check_int(supersample, "supersample", 1),
+        check_memory_limit(memory_limit),
+    )
+
+
+def two_pass_bytes(scene: WaterScene, samples_x: int, channels_y: int, supersample: int) -> int:
+    """Memory of a two-pass render, bytes (an estimate, made before compiling): per
+    channel and sub-pixel phase (``S^2``), `_SAMPLE_FLOATS` numbers per pre-pass sample
+    of the padded grid ``(rows + M) x (cols + N - 1)`` and the ``N + M + 1`` partial
+    sums per pixel row of the gather, plus the image. It grows with the receiver's
+    pixels, ``S^2`` and the window."""
+    rows, cols = scene.receiver.shape
+    channels = len(scene.iors)
+    n, m = samples_x, channels_y
+    per_phase = _SAMPLE_FLOATS * (rows + m) * (cols + n - 1) + (n + m + 1) * (rows + m) * cols
+    floats = channels * (supersample * supersample * per_phase + rows * cols)
+    return jnp.dtype(scene.surface.heights.dtype).itemsize * floats
+
+
+def _check_two_pass_memory(scene, samples_x, channels_y, supersample, memory_limit) -> None:
+    rows, cols = scene.receiver.shape
+    check_fits(
+        two_pass_bytes(scene, samples_x, channels_y, supersample),
+        memory_limit,
+        f"the two-pass render of {rows} x {cols} pixels ({len(scene.iors)} channel(s), "
+        f"samples_x={samples_x}, channels_y={channels_y}, supersample={supersample})",
+        "lower `supersample`, `samples_x` / `channels_y` or the receiver's pixels",
+    )
+
+
+@eqx.filter_jit
+def _two_pass(
+    scene: WaterScene, half_x: int, half_y: int, iterations: int, supersample: int
+) -> TwoPassResult:
+    pre = prepass(scene, half_x, half_y, iterations, supersample)
+    rows, cols = scene.receiver.shape
+    gather_phases = jax.vmap(gather_window, in_axes=(0, 0, 0, None, None))
+    channels = [
+        jnp.mean(gather_phases(pre.shift_x[c], pre.shift_y[c], pre.flux[c], half_x, half_y), 0)
+        for c in range(len(scene.iors))
+    ]
+    image = channels_last(scene, jnp.stack(channels))
+    inner = (Ellipsis, slice(half_y, half_y + rows), slice(half_x, half_x + cols))
+    in_window = _window_fraction(pre.shift_x[inner], half_x) * _window_fraction(
+        pre.shift_y[inner], half_y
+    )
+    missed = jnp.mean(pre.flux[inner] * (1.0 - in_window), axis=(1, 2, 3))
+    return TwoPassResult(image, missed)
+
+
+@eqx.filter_jit
+def _largest_shift(scene: WaterScene, iterations: int, supersample: int) -> tuple[Array, Array]:
+    pre = prepass(scene, 0, 0, iterations, supersample)
+    return jnp.max(jnp.abs(pre.shift_x)), jnp.max(jnp.abs(pre.shift_y))
+
+
+def auto_window(
+    scene: WaterScene,
+    hit_iterations: int = 3,
+    supersample: int = 1,
+    *,
+    memory_limit: int | None = None,
+) -> tuple[int, int]:
+    """``(N, M)`` just large enough for the scene's largest ray displacement.
+
+    Traces the pre-pass once (needs concrete scene values: call it outside `jit`).
+    `hit_iterations`, `supersample` and `memory_limit` as in `two_pass` (the pre-pass
+    of the smallest window must fit in `memory_limit`).
+    """
+    hit_iterations, supersample, memory_limit = _check_knobs(
+        scene, hit_iterations, supersample, memory_limit
+    )
+    _check_two_pass_memory(scene, 1, 0, supersample, memory_limit)
+    if isinstance(scene.surface.heights, jax.core.Tracer):
+        raise ValueError(
+            "samples_x='auto' needs concrete scene values; under jit/vmap pass integers "
+            "(for example from `auto_window(scene)` computed beforehand)"
+        )
+    sx, sy = (float(v) for v in _largest_shift(scene, hit_iterations, supersample))
+    half_x, half_y = (min(MAX_AUTO_HALF_WINDOW, max(1, math.ceil(s - 1e-6))) for s in (sx, sy))
+    return 2 * half_x + 1, 2 * half_y
+
+
+class TwoPass(Method):
+    """Yuksel & Keyser's two-pass caustics of height-field water: ``TwoPass(samples_x=...,
+    ...)(scene)`` or ``render(scene, TwoPass(...))``. The knobs (and their defaults) are
+    those of `two_pass`: `samples_x` (N), `channels_y` (M), `hit_iterations`,
+    `supersample`, `memory_limit`. Renders `WaterScene` only."""
+
+    samples_x: int | Literal["auto"] = 7
+    channels_y: int | Literal["auto"] = 6
+    hit_iterations: int = 3
+    supersample: int = 1
+    memory_limit: int | None = None
+
+    name: ClassVar[str] = "twopass"
+    scene_types: ClassVar[tuple[type, ...]] = (WaterScene,)
+
+    def sized_for(self, scenes: Sequence) -> TwoPass:
+        """An ``"auto"`` window becomes the widest `auto_window` of `scenes`."""
+        if not (_is_auto(self.samples_x) or _is_auto(self.channels_y)):
+            return self
+        windows = np.array(
+            [
+                auto_window(
+                    s, self.hit_iterations, self.supersample, memory_limit=self.memory_limit
+                )
+                for s in scenes
+            ]
+        )
+        n, m = (int(v) for v in windows.max(axis=0))
+        return dataclasses.replace(self, samples_x=n, channels_y=m)
+
+    def trace(self, scene) -> TwoPassResult:
+        return two_pass(scene, **self.knobs())
+
+
+@checks_scene_values
+def two_pass(
+    scene: WaterScene,
+    *,
+    samples_x: int | Literal["auto"] = TwoPass.samples_x,
+    channels_y: int | Literal["auto"] = TwoPass.channels_y,
+    hit_iterations: int = TwoPass.hit_iterations,
+    supersample: int = TwoPass.supersample,
+    memory_limit: int | None = TwoPass.memory_limit,
+) -> TwoPassResult:
+    """Caustics of `scene` by Yuksel & Keyser's two-pass gather.
+
+    **Arguments:**
+
+    - `scene`: a `WaterScene`.
+    - `samples_x`: N, samples along ``x`` per pixel (odd); ``"auto"`` sizes the window
+      from the largest ray displacement (then `channels_y` is chosen too).
+    - `channels_y`: M, so that ``M + 1`` neighbouring pixels along ``y`` are reached
+      (even); ``"auto"`` as above.
+    - `hit_iterations`: Newton steps to find where each light ray meets the moving
+      surface (0 uses the rest-plane point; oblique light needs 2-4).
+    - `supersample`: S, so that ``S x S`` samples per pixel (each carrying ``1/S^2`` of
+      the pixel's light and spread over a pixel-sized square, as in the paper) are
+      gathered. 1 is the paper's method; 2 removes most of the faint pixel-grid ripple
+      that one sample per pixel leaves where the light is stretched or squeezed, at
+      about 4x the cost.
+    - `memory_limit`: bytes (default 1 GiB). The render's memory is estimated before
+      anything is compiled (`two_pass_bytes`: it grows with the receiver's pixels,
+      ``S^2`` and the window ``N x (M + 1)``); over the limit it raises a `ValueError`
+      with the estimate (with ``"auto"``, first for the smallest window, then for the
+      one chosen).
+
+    Knobs are checked before anything is compiled: ints are ints (no bools or floats),
+    `hit_iterations` in ``[0, 100]``; with ``"auto"`` for one of `samples_x` /
+    `channels_y` the other must be ``"auto"`` or a valid int (it is then replaced).
+
+    **Returns:** a `TwoPassResult` with the irradiance image and the missed-flux
+    fraction. Jit-compiled; differentiable with respect to every array of the scene
+    (heights, extents, rest depth, light direction).
+    """
+    hit_iterations, supersample, memory_limit = _check_knobs(
+        scene, hit_iterations, supersample, memory_limit
+    )
+    # "auto" for one of the pair: the other is checked all the same (then replaced)
+    _check_window(
+        1 if _is_auto(samples_x) else samples_x, 0 if _is_auto(channels_y) else channels_y
+    )
+    auto = _is_auto(samples_x) or _is_auto(channels_y)
+    if auto:
+        samples_x, channels_y = auto_window(
+            scene, hit_iterations, supersample, memory_limit=memory_limit
+        )
+    half_x, half_y = _check_window(samples_x, channels_y)
+    rows, cols = scene.receiver.shape
+    # an explicit window: `samples_x=100001` once compiled for minutes
+    if not auto and (half_x > cols or half_y > rows):
+        raise ValueError(
+            f"the window (`samples_x` {samples_x}, `channels_y` {channels_y}) reaches past "
+            f"the receiver's {rows} x {cols} pixels: samples_x <= {2 * cols + 1} and "
+            f"channels_y <= {2 * rows} already reach every pixel"
+        )
+    _check_two_pass_memory(scene, samples_x, channels_y, supersample, memory_limit)
+    return _two_pass(scene, half_x, half_y, hit_iterations, supersample)

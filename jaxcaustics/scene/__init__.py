@@ -1,0 +1,11 @@
+"""Stage 1, the scene: what is lit, by what, and where the light lands.
+
+- `scene.py`: `HeightField`, `DirectionalLight`, `PointLight`, `PlaneReceiver`, `Effects`,
+  `WaterScene` and `LensScene` (plain data: Equinox modules).
+- `mesh.py`: `Mesh` and `MeshScene`; `ellipsoid.py`: `Ellipsoid` and `EllipsoidScene`.
+- `surface.py`: the height field between its samples (Catmull-Rom bicubic) and rays
+  meeting it; `waves.py`: procedural water surfaces.
+- `checks.py`: a scene's values checked where a method starts rendering (under `jit`).
+
+Imports only `jaxcaustics._checks`: every later stage reads the scene, none is read here.
+"""
