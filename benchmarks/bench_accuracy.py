@@ -55,6 +55,7 @@ import jaxcaustics as jc
 from jaxcaustics import reference
 from jaxcaustics.methods.choose import as_mesh_scene as _as_mesh_scene
 from jaxcaustics.methods.choose import resolve_knobs
+from jaxcaustics.methods.registry import METHODS
 
 ROOT = Path(__file__).resolve().parent.parent
 RESULTS = ROOT / "benchmarks" / "results"
@@ -65,11 +66,7 @@ KINDS = ("water", "lens", "mesh", "moving_light")
 METRIC = "relative L1 after 1-px Gaussian blur"
 BLUR_PX = 1.0
 # knobs whose value must grow with the receiver's resolution, stored per pixel
-PER_PIXEL_KNOBS = {
-    "triangles": ("photons",),
-    "caustics_mapping": ("photons",),
-    "adaptive": ("photons",),
-}
+PER_PIXEL_KNOBS = {name: cls.resolution_knobs for name, cls in METHODS.items()}
 
 # --------------------------------------------------------------------------- configs
 # rows per kind: (method, knobs as passed to jc.render (photons absolute, converted to

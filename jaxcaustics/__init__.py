@@ -35,11 +35,14 @@ from .inverse.sequence import SequenceResult, recover_sequence
 from .inverse.transport import TransportMap, transport_map
 from .inverse.verify import Verification, relative_l2, verify_lens
 from .io.images import read_exr, read_image, write_exr, write_png, write_png_linear16
+from .methods.base import Method, RenderResult
 from .methods.batch import render_batch
 from .methods.caustic_map.gbuffer import GeometryBuffers, geometry_buffers, ray_geo
 from .methods.caustic_map.light_view import LightView, light_view
 from .methods.caustic_map.method import (
+    AdaptiveCausticMap,
     CausticMapResult,
+    CausticsMapping,
     PinholeCamera,
     adaptive_caustic_map,
     camera_image,
@@ -67,7 +70,7 @@ from .methods.spot_lights.lights import (
     render_spot_lights,
     shade_points,
 )
-from .methods.spot_lights.method import SpotLightResult, spot_lights
+from .methods.spot_lights.method import SpotLightMethod, SpotLightResult, spot_lights
 from .methods.spot_lights.table import (
     SpotLightTable,
     icosphere_directions,
@@ -75,6 +78,7 @@ from .methods.spot_lights.table import (
     precompute_spot_lights,
 )
 from .methods.triangles.method import (
+    CausticTriangles,
     CubeMapOptions,
     TrianglesResult,
     caustic_triangles,
@@ -83,7 +87,7 @@ from .methods.triangles.method import (
     triangle_window,
     triangles_image,
 )
-from .methods.twopass import TwoPassResult, auto_window, two_pass
+from .methods.twopass import TwoPass, TwoPassResult, auto_window, two_pass
 from .scene.ellipsoid import Ellipsoid, EllipsoidScene
 from .scene.mesh import Mesh, MeshScene
 from .scene.scene import (
@@ -106,11 +110,14 @@ __version__ = importlib.metadata.version("jaxcaustics")
 __all__ = [
     "accuracy_table",
     "adaptive_caustic_map",
+    "AdaptiveCausticMap",
     "auto_window",
     "camera_image",
     "caustic_triangles",
     "CausticMapResult",
     "caustics_mapping",
+    "CausticsMapping",
+    "CausticTriangles",
     "Choice",
     "choose_method",
     "CubeMapOptions",
@@ -150,6 +157,7 @@ __all__ = [
     "map_sharded",
     "Mesh",
     "MeshScene",
+    "Method",
     "method_support",
     "photon_bytes",
     "Photons",
@@ -172,11 +180,13 @@ __all__ = [
     "render",
     "render_batch",
     "render_spot_lights",
+    "RenderResult",
     "SequenceResult",
     "shade_points",
     "sine_sum",
     "splat_photons",
     "spot_lights",
+    "SpotLightMethod",
     "SpotLightRays",
     "SpotLightResult",
     "SpotLights",
@@ -190,6 +200,7 @@ __all__ = [
     "triangles_image",
     "TrianglesResult",
     "two_pass",
+    "TwoPass",
     "TwoPassResult",
     "unstack_scenes",
     "Verification",

@@ -70,7 +70,7 @@ def test_bench_accuracy_quick(tmp_path):
         assert result["rows"], kind
         for row in result["rows"]:
             assert ROW_KEYS <= set(row), (kind, row)
-            assert row["method"] in jc.methods.render.METHODS, row
+            assert row["method"] in jc.methods.registry.METHODS, row
             assert 0.0 <= row["error"] < 1.0 and row["time_s"] > 0.0, row
             assert row["as_mesh"] is None or set(row["as_mesh"]) == {"subdivisions"}
             if not row["choosable"]:
@@ -106,6 +106,6 @@ def test_package_table_schema():
     for result in table["kinds"].values():
         for row in result["rows"]:
             assert ROW_KEYS <= set(row)
-            assert row["method"] in jc.methods.render.METHODS
+            assert row["method"] in jc.methods.registry.METHODS
             for value in row["knobs"].values():
                 assert not isinstance(value, dict) or set(value) == {"per_pixel"}

@@ -220,7 +220,7 @@ def test_stored_table_has_every_kind_and_runnable_methods():
         rows = [r for r in entry["rows"] if r.get("choosable", True)]
         assert rows, kind
         for r in rows:
-            assert r["method"] in jc.methods.render.METHODS
+            assert r["method"] in jc.methods.registry.METHODS
             assert np.isfinite(r["error"]) and r["error"] > 0 and r["time_s"] > 0
         for ref in entry["reference"]:
             assert np.isfinite(ref["error"]) and ref["time_s"] > 0

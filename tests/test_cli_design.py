@@ -68,7 +68,7 @@ def test_design_writes_a_millable_lens_and_resumes_to_the_same_result(tmp_path, 
     resumed = tmp_path / "resumed"
     monkeypatch.setattr(cli_module, "design_lens", ctrl_c_in_level_two)
     assert main([*args, "--output", str(resumed)]) == 130  # interrupted, checkpoint kept
-    assert (resumed / "design.ckpt.npz").is_file() and not (resumed / "lens.stl").exists()
+    assert (resumed / "design.ckpt").is_file() and not (resumed / "lens.stl").exists()
     assert main([*args, "--output", str(resumed), "--resume"]) == 0
     np.testing.assert_array_equal(
         read_exr(resumed / "lens_height.exr"), read_exr(straight / "lens_height.exr")

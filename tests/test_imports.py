@@ -97,7 +97,51 @@ def test_no_import_cycle():
 def test_the_walk_sees_the_package():
     graph = _imports()
     assert "jaxcaustics.methods.render" in graph and "jaxcaustics.reference" in graph
-    assert "jaxcaustics.methods.twopass" in graph["jaxcaustics.methods.render"][0]
+    assert "jaxcaustics.methods.twopass" in graph["jaxcaustics.methods.registry"][0]
+
+
+# the stages of the data flow, in order: a module imports only from its own group or an
+# earlier stage (scene -> trace -> reconstruct -> methods -> inverse -> cli)
+STAGES = [
+    ("_checks",),
+    ("devices", "io", "reference"),
+    ("scene",),
+    ("trace",),
+    ("reconstruct",),
+    ("methods.base",),
+    ("methods.twopass", "methods.triangles", "methods.caustic_map", "methods.spot_lights"),
+    ("methods",),
+    ("inverse",),
+    ("",),  # the package's __init__: the public names
+    ("cli",),  # the command, a user of the public names
+    ("__main__",),
+]
+
+
+def _group(module: str) -> tuple[int, str]:
+    """``(stage, group)`` of a package module: the longest prefix listed in `STAGES`."""
+    name = module.removeprefix("jaxcaustics").removeprefix(".")
+    best = None
+    for rank, groups in enumerate(STAGES):
+        for group in groups:
+            if name == group or (group and name.startswith(group + ".")):
+                if best is None or len(group) > len(best[1]):
+                    best = (rank, group)
+    assert best is not None, f"{module} is in no stage of STAGES"
+    return best
+
+
+def test_each_stage_imports_only_earlier_stages():
+    """The tree shows the data flow: a scene knows nothing of tracing, a method nothing of
+    another method or of the inverse problems, and so on."""
+    wrong = []
+    for module, (top, _) in _imports().items():
+        rank, group = _group(module)
+        for target in top:
+            target_rank, target_group = _group(target)
+            if target_group != group and target_rank >= rank:
+                wrong.append(f"{module} -> {target}")
+    assert not wrong, "imports against the data flow:\n" + "\n".join(wrong)
 
 
 def test_the_public_surface_is_all():

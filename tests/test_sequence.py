@@ -68,7 +68,7 @@ def test_frames_are_recovered_in_order_each_warm_started(video, tmp_path):
         if index == 1:
             raise KeyboardInterrupt
 
-    ckpt = tmp_path / "video.ckpt.npz"
+    ckpt = tmp_path / "video.ckpt"
     kwargs = dict(extent=EXT, rest_depth=DEPTH, light=light(), progress=False, checkpoint=ckpt)
     part = jc.recover_sequence(frames, callback=stop_at_second, **kwargs)
     assert part.interrupted and part.done == 1  # frame 1's round did not finish

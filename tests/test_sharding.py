@@ -77,11 +77,7 @@ SCRIPT = textwrap.dedent(
     images = render_batch(lenses, photons=21)  # a list is stacked here
     assert images.sharding.spec == jax.sharding.PartitionSpec(MESH_AXIS)  # split 4 ways
     assert len(images.sharding.device_set) == 4
-    from jaxcaustics.methods.batch import _resolve_auto_knobs
-    from jaxcaustics.methods.render import METHODS
-    window = _resolve_auto_knobs(
-        stack_scenes(lenses), "triangles", METHODS["triangles"], {"photons": 21}
-    )["window"]
+    window = jc.CausticTriangles(photons=21).sized_for(lenses).window
     single = np.stack(
         [np.asarray(jc.render(s, "triangles", photons=21, window=window)) for s in lenses]
     )

@@ -1,7 +1,7 @@
 """``jaxcaustics design``: from a target picture to a lens a workshop can mill.
 
 The design runs level by level (coarse to fine); after every level the heights are
-written to a checkpoint (``design.ckpt.npz`` in the output folder), so ``--resume``
+written to a checkpoint (``design.ckpt`` in the output folder), so ``--resume``
 continues an interrupted run (Ctrl-C keeps the last checkpoint) and ends where an
 uninterrupted run ends. Outputs: the solid as STL and OBJ (millimetres), the height map
 (16-bit PNG and EXR), the predicted caustic (PNG), the loss plot and the
@@ -281,7 +281,7 @@ def _run_levels(
     or a checkpoint of a finished run), else None."""
     import jax.numpy as jnp
 
-    checkpoint = out / f"{label}.ckpt.npz"  # `run_design` checked it is there with --resume
+    checkpoint = out / f"{label}.ckpt"  # `run_design` checked it is there with --resume
     _, done, interrupted = run_rounds(
         rounds,
         {"heights": jnp.zeros(shape), "loss": jnp.asarray(np.inf)},
@@ -301,7 +301,7 @@ def run_design(args: argparse.Namespace) -> int:
     import jax.numpy as jnp
 
     out = output_folder(args.output)
-    resume_checkpoint(out / "design.ckpt.npz", args.resume)
+    resume_checkpoint(out / "design.ckpt", args.resume)
     target = _load_target(args.target, args.size)
     height = args.height or args.width * target.shape[0] / target.shape[1]
     if args.start == "transport":  # one level: the heights grid of the landing fit
@@ -567,7 +567,7 @@ def run_recover(args: argparse.Namespace) -> int:
         if not Path(name).exists():
             raise ValueError(f"`TARGET` {name!r}: no such file or folder")
     out = output_folder(args.output)
-    checkpoint = out / "recover.ckpt.npz"
+    checkpoint = out / "recover.ckpt"
     resume_checkpoint(checkpoint, args.resume)
     extent = (0.0, args.size[0], 0.0, args.size[1])
     light = DirectionalLight.from_angles(args.zenith, args.azimuth)

@@ -8,8 +8,11 @@ with ``resume=True`` loads the last checkpoint and goes on with the next round, 
 ends at exactly the state an uninterrupted run reaches.
 
 States are pytrees of arrays and Python scalars (dicts, lists, tuples, Equinox modules
-with array leaves); they are stored as an ``.npz`` file with their tree structure
-checked on load.
+with array leaves). A checkpoint file holds a header (format, the state's tree structure,
+rounds done; NumPy ``.npy`` records) and then the leaves, written by
+`equinox.tree_serialise_leaves` and read back by `equinox.tree_deserialise_leaves` into
+the structure of the state a run starts from; the structure and every leaf's shape are
+checked on load (Equinox reads leaves in order and checks neither).
 """
 
 from __future__ import annotations
@@ -20,25 +23,21 @@ from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
+import equinox as eqx
 import jax
 import numpy as np
 
-FORMAT = "jaxcaustics-checkpoint-1"
+FORMAT = "jaxcaustics-checkpoint-2"
 
 
 def save_checkpoint(path: str | os.PathLike, state: Any, round_index: int) -> Path:
     """Write `state` (after `round_index` rounds) to `path` atomically; returns the path."""
     path = Path(path)
-    leaves, treedef = jax.tree_util.tree_flatten(state)
-    arrays = {f"leaf_{k}": np.asarray(leaf) for k, leaf in enumerate(leaves)}
-    tmp = path.with_name(path.name + ".tmp.npz")
-    np.savez(
-        tmp,
-        __format__=np.array(FORMAT),
-        __tree__=np.array(str(treedef)),
-        __round__=np.array(round_index),
-        **arrays,
-    )
+    tmp = path.with_name(path.name + ".tmp")
+    with open(tmp, "wb") as f:
+        for header in (FORMAT, str(jax.tree_util.tree_structure(state)), round_index):
+            np.save(f, np.array(header), allow_pickle=False)
+        eqx.tree_serialise_leaves(f, state)
     os.replace(tmp, path)
     return path
 
@@ -52,35 +51,32 @@ def load_checkpoint(path: str | os.PathLike, like: Any) -> tuple[Any, int]:
     path = Path(path)
     if not path.is_file():
         raise ValueError(f"`path` {str(path)!r}: no checkpoint there")
-    try:
-        with np.load(path, allow_pickle=False) as data:
-            if str(data["__format__"]) != FORMAT:
-                raise ValueError("not a jaxcaustics checkpoint")
-            tree = str(data["__tree__"])
-            rounds_done = int(data["__round__"])
-            stored = [data[f"leaf_{k}"] for k in range(len(data.files) - 3)]
-    except (OSError, KeyError, ValueError) as err:
-        raise ValueError(f"`path` {str(path)!r} is not a readable checkpoint: {err}") from err
-    leaves, treedef = jax.tree_util.tree_flatten(like)
-    if tree != str(treedef) or len(stored) != len(leaves):
-        raise ValueError(f"`path` {str(path)!r} holds a state of another structure")
-    restored = []
-    for new, old in zip(stored, leaves, strict=True):
-        old_shape = np.shape(old)
-        if new.shape != old_shape:
-            raise ValueError(
-                f"`path` {str(path)!r} holds an array of shape {new.shape} where "
-                f"{old_shape} is expected"
+
+    mismatch = []  # Equinox wraps what a leaf raises: the message is kept here
+
+    def leaf(f, old):
+        new = eqx.default_deserialise_filter_spec(f, old)
+        if np.shape(new) != np.shape(old):
+            mismatch.append(
+                f"`path` {str(path)!r} holds an array of shape {np.shape(new)} where "
+                f"{np.shape(old)} is expected"
             )
-        restored.append(new if isinstance(old, (np.ndarray, jax.Array)) else new.item())
-    state = jax.tree_util.tree_unflatten(treedef, restored)
-    return jax.tree_util.tree_map(
-        lambda new, old: (
-            jax.numpy.asarray(new, dtype=old.dtype) if isinstance(old, jax.Array) else new
-        ),
-        state,
-        like,
-    ), rounds_done
+            raise ValueError(mismatch[-1])
+        return new
+
+    try:
+        with open(path, "rb") as f:
+            if str(np.load(f, allow_pickle=False)) != FORMAT:
+                raise ValueError(f"not a jaxcaustics checkpoint of format {FORMAT!r}")
+            if str(np.load(f, allow_pickle=False)) != str(jax.tree_util.tree_structure(like)):
+                raise ValueError(f"`path` {str(path)!r} holds a state of another structure")
+            rounds_done = int(np.load(f, allow_pickle=False))
+            state = eqx.tree_deserialise_leaves(f, like, filter_spec=leaf)
+    except Exception as err:  # noqa: BLE001 (unreadable files raise many kinds)
+        if mismatch or str(err).startswith("`path`"):
+            raise ValueError(mismatch[0] if mismatch else str(err)) from err
+        raise ValueError(f"`path` {str(path)!r} is not a readable checkpoint: {err}") from err
+    return state, rounds_done
 
 
 def run_rounds(

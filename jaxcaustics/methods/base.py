@@ -60,6 +60,12 @@ class Method(eqx.Module):
 
     name: ClassVar[str]
     scene_types: ClassVar[tuple[type, ...]]
+    #: knobs (photon grids) that must grow with the receiver's pixels for the same error
+    #: (the accuracy tables store them per pixel)
+    resolution_knobs: ClassVar[tuple[str, ...]] = ()
+    #: for methods whose missed flux is light their model leaves out (not light landing
+    #: off the receiver), what to change when `render` warns of it; else ``None``
+    missed_advice: ClassVar[str | None] = None
 
     def knobs(self) -> dict[str, Any]:
         """The knobs as keywords of the method's function."""
@@ -70,14 +76,19 @@ class Method(eqx.Module):
         return tuple(f.name for f in dataclasses.fields(cls))
 
     @classmethod
-    def from_knobs(cls, **knobs: Any) -> Method:
-        """The method with `knobs`; a `ValueError` names the first one it does not take."""
+    def check_knob_names(cls, knobs: dict[str, Any]) -> None:
+        """A `ValueError` naming the first of `knobs` the method does not take."""
         unknown = sorted(set(knobs) - set(cls.knob_names()))
         if unknown:
             raise ValueError(
                 f"`{unknown[0]}` is not a knob of method {cls.name!r} (its knobs: "
                 f"{', '.join(sorted(cls.knob_names()))})"
             )
+
+    @classmethod
+    def from_knobs(cls, **knobs: Any) -> Method:
+        """The method with `knobs` (keywords of its function), names checked."""
+        cls.check_knob_names(knobs)
         return cls(**knobs)
 
     def support(self, scene) -> str | None:
@@ -87,6 +98,10 @@ class Method(eqx.Module):
             kinds = " and ".join(t.__name__ for t in self.scene_types)
             return f"{self.name} takes {kinds} scenes, not a {type(scene).__name__}"
         return None
+
+    def needs_sizing(self) -> bool:
+        """Whether some knob is ``"auto"`` and sized from scene values (`sized_for`)."""
+        return False
 
     def sized_for(self, scenes: Sequence) -> Method:
         """The method with its ``"auto"`` knobs sized for every one of `scenes` (concrete

@@ -20,7 +20,6 @@ from __future__ import annotations
 import dataclasses
 import functools
 import json
-import math
 from importlib import resources
 from typing import Any
 
@@ -30,7 +29,8 @@ from .. import reference
 from .._checks import check_choice, check_number, check_real_array
 from ..scene.ellipsoid import EllipsoidScene
 from ..scene.mesh import MeshScene
-from ..scene.scene import DirectionalLight, LensScene, WaterScene
+from ..scene.scene import LensScene, WaterScene
+from .registry import method_class
 
 #: scene type -> the kind of scene its accuracy table was measured on
 SCENE_KINDS = {
@@ -43,13 +43,6 @@ SCENE_KINDS = {
 #: within the tolerance. On the held-out scenes of ``benchmarks/bench_tolerance.py`` the
 #: choosable settings' errors were at most 1.9 times their tabled errors.
 DEFAULT_MARGIN = 2.0
-#: a mesh is sphere-like (caustic spot lights apply) if every vertex lies within this
-#: relative distance of the ellipsoid through its principal extents, and that
-#: ellipsoid's longest axis is at most `SPHERE_LIKE_ASPECT` times its shortest
-SPHERE_LIKE_DEVIATION = 0.1
-#: the methods `render` knows (its ``METHODS``), in the order of `method_support`
-METHOD_NAMES = ("twopass", "triangles", "caustics_mapping", "adaptive", "spot_lights")
-SPHERE_LIKE_ASPECT = 3.0
 
 
 @dataclasses.dataclass(frozen=True)
@@ -203,71 +196,15 @@ def scene_kind(scene) -> str:
     )
 
 
-def _sphere_like(vertices: np.ndarray) -> str | None:
-    # the principal extents of the vertices give the ellipsoid they should lie on
-    """``None`` if the points lie on an ellipsoid of moderate aspect (whose refracted rays
-    focus near moving points), else why not."""
-    centre = vertices.mean(axis=0)
-    local = vertices - centre
-    _, _, axes = np.linalg.svd(local, full_matrices=False)
-    coords = local @ axes.T
-    radii = 0.5 * (coords.max(axis=0) - coords.min(axis=0))
-    if radii.min() <= 0:
-        return "the object is flat"
-    aspect = radii.max() / radii.min()
-    if aspect > SPHERE_LIKE_ASPECT:
-        return f"the object is elongated (aspect {aspect:.3g} > {SPHERE_LIKE_ASPECT:g})"
-    mid = 0.5 * (coords.max(axis=0) + coords.min(axis=0))
-    deviation = np.abs(np.linalg.norm((coords - mid) / radii, axis=1) - 1.0).max()
-    if deviation > SPHERE_LIKE_DEVIATION:
-        return (
-            f"the object is not sphere-like (vertices {deviation:.2g} off the ellipsoid "
-            "through its extents; caustic spot lights need rays focusing near points, "
-            "Liu et al. Sect. 6: a cylinder focuses on a line)"
-        )
-    return None
-
-
 def method_support(method: str, scene) -> str | None:
     """``None`` if `method` can render everything `scene` calls for, else the reason it
     cannot (an effect the method does not simulate, or a shape it cannot represent).
-    `method`: one of ``"twopass"``, ``"triangles"``, ``"caustics_mapping"``,
-    ``"adaptive"``, ``"spot_lights"``; `scene`: a scene of a kind in `SCENE_KINDS`."""
-    check_choice(method, "method", METHOD_NAMES)
+    `method`: a name in `METHODS` (``"twopass"``, ``"triangles"``,
+    ``"caustics_mapping"``, ``"adaptive"``, ``"spot_lights"``); `scene`: a scene of a
+    kind in `SCENE_KINDS`. Each method's own `Method.support` says it."""
+    cls = method_class(method)
     scene_kind(scene)
-    fx = scene.effects
-    if method == "twopass":
-        if not isinstance(scene, WaterScene):
-            return "two-pass caustics take a height-field water surface only"
-        return None
-    if method == "triangles":
-        if isinstance(scene, (LensScene, MeshScene)):
-            return None
-        return "caustic triangles take lens slabs and meshes"
-    if method in ("caustics_mapping", "adaptive"):
-        if not isinstance(scene, MeshScene):
-            return "caustic maps take meshes"
-        if fx.occlusion:
-            return "caustic maps do not test occlusion (the scene has occluders)"
-        if fx.reflection:
-            return "caustic maps refract only (the mesh is a mirror)"
-        return None
-    if method == "spot_lights":
-        if not isinstance(scene, (EllipsoidScene, MeshScene)):
-            return "caustic spot lights take glass ellipsoids and meshes"
-        if not isinstance(scene.light, DirectionalLight):
-            return "caustic spot lights are fitted to parallel light"
-        if isinstance(scene, MeshScene):
-            if fx.reflection:
-                return "caustic spot lights refract only (the mesh is a mirror)"
-            if fx.occlusion:
-                return "caustic spot lights shadow with ellipsoid occluders only"
-            return _sphere_like(np.asarray(scene.generator.vertices, dtype=float))
-        radii = np.asarray(scene.generator.radii, dtype=float)
-        aspect = radii.max() / radii.min()
-        if aspect > SPHERE_LIKE_ASPECT:
-            return f"the ellipsoid is elongated (aspect {aspect:.3g} > {SPHERE_LIKE_ASPECT:g})"
-        return None
+    return cls().support(scene)
 
 
 def as_mesh_scene(scene: EllipsoidScene, subdivisions: int) -> MeshScene:
@@ -293,19 +230,19 @@ def resolve_knobs(
     max(rows, cols))``, and never fewer than the ``round(f * max(table_pixels))``
     measured (the detail a grid resolves is in the scene, not only in the receiver's
     pixels: fewer photons than measured would not keep the measured error). Adaptive
-    caustic maps' grids are then rounded up to their `base` (64) times a power of two.
+    caustic maps' grids are then rounded up to their `base` (64) times a power of two
+    (`Method.rounded`).
     Other knobs are passed as stored.
     """
     side, table_side = max(shape), max(table_pixels)
-    out = {}
-    for name, value in knobs.items():
-        if isinstance(value, dict):
-            value = max(round(value["per_pixel"] * side), round(value["per_pixel"] * table_side))
-            if method == "adaptive":
-                base = knobs.get("base", 64)
-                value = base * 2 ** max(0, math.ceil(math.log2(value / base)))
-        out[name] = value
-    return out
+    out = {
+        name: max(round(v["per_pixel"] * side), round(v["per_pixel"] * table_side))
+        if isinstance(v, dict)
+        else v
+        for name, v in knobs.items()
+    }
+    rounded = method_class(method).from_knobs(**out).rounded()
+    return {name: rounded.knobs()[name] for name in out}
 
 
 def _check_tolerance(tolerance, margin) -> tuple[float, float]:
@@ -344,7 +281,7 @@ def choose_method(
     tolerance, margin = _check_tolerance(tolerance, margin)
     kind = scene_kind(scene)
     if method is not None:
-        check_choice(method, "method", METHOD_NAMES)
+        method_class(method)
     if table is not None and not isinstance(table, dict):
         raise ValueError(
             f"`table` must be a dict in the schema of accuracy_table(), got {type(table).__name__}"

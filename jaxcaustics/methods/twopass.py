@@ -342,10 +342,18 @@ class TwoPass(Method):
 
     name: ClassVar[str] = "twopass"
     scene_types: ClassVar[tuple[type, ...]] = (WaterScene,)
+    missed_advice: ClassVar[str | None] = (
+        "it lands beyond the window of samples_x x (channels_y + 1) pixels around its "
+        "illumination centre; pass samples_x='auto', channels_y='auto' (the window sized "
+        "from the largest ray displacement) or a wider window"
+    )
+
+    def needs_sizing(self) -> bool:
+        return _is_auto(self.samples_x) or _is_auto(self.channels_y)
 
     def sized_for(self, scenes: Sequence) -> TwoPass:
         """An ``"auto"`` window becomes the widest `auto_window` of `scenes`."""
-        if not (_is_auto(self.samples_x) or _is_auto(self.channels_y)):
+        if not self.needs_sizing():
             return self
         windows = np.array(
             [

@@ -304,6 +304,7 @@ class _CausticMapMethod(Method):
     """What both caustic maps support: refracting meshes without occluders."""
 
     scene_types: ClassVar[tuple[type, ...]] = (MeshScene,)
+    resolution_knobs: ClassVar[tuple[str, ...]] = ("photons",)
 
     def support(self, scene) -> str | None:
         if not isinstance(scene, MeshScene):

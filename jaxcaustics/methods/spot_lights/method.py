@@ -158,6 +158,9 @@ class SpotLightMethod(Method):
 
     name: ClassVar[str] = "spot_lights"
     scene_types: ClassVar[tuple[type, ...]] = (EllipsoidScene, MeshScene)
+    missed_advice: ClassVar[str | None] = (
+        "the fitted spot lights do not carry it; pass a larger `max_lights` or `rays_per_axis`"
+    )
 
     @classmethod
     def knob_names(cls) -> tuple[str, ...]:
@@ -166,7 +169,7 @@ class SpotLightMethod(Method):
 
     @classmethod
     def from_knobs(cls, **knobs: Any) -> SpotLightMethod:
-        super().from_knobs(**knobs)  # refuses unknown names
+        cls.check_knob_names(knobs)
         own = {k: v for k, v in knobs.items() if k in cls.__dataclass_fields__}
         return cls(**own, fit={k: v for k, v in knobs.items() if k not in own})
 

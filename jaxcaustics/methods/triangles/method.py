@@ -650,12 +650,16 @@ class CausticTriangles(Method):
     cube_map: CubeMapOptions | None = None
 
     name: ClassVar[str] = "triangles"
+    resolution_knobs: ClassVar[tuple[str, ...]] = ("photons",)
     scene_types: ClassVar[tuple[type, ...]] = (LensScene, MeshScene)
+
+    def needs_sizing(self) -> bool:
+        return _is_auto(self.window) and self.visibility == "exact"
 
     def sized_for(self, scenes: Sequence) -> CausticTriangles:
         """An ``"auto"`` window (exact visibility) becomes the largest `triangle_window`
         of `scenes`' photons."""
-        if not (_is_auto(self.window) and self.visibility == "exact"):
+        if not self.needs_sizing():
             return self
         grid = _check_grid(self.photons)
         extra = {
