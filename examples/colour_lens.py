@@ -62,7 +62,7 @@ def main(argv=None):
 
     target = area_average(getattr(data, args.picture)().astype(float) / 255.0, args.size)
     photons = args.photons * args.size
-    lens = dict(width=0.1, height=0.1, thickness=0.01, throw=0.5)  # metres
+    lens = dict(width=0.1, height=0.1, thickness=0.01, screen_distance=0.5)  # metres
 
     # 1. One lens per channel, designed and rendered at that channel's index. A single
     #    heights grid of twice the pixels (the solver compiles once per index).
@@ -98,7 +98,7 @@ def main(argv=None):
         green.light,
         green.receiver,
         green.thickness,
-        green.throw,
+        green.screen_distance,
         ior=tuple(N_BK7.values()),
     )
     t0 = time.perf_counter()

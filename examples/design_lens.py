@@ -54,7 +54,9 @@ def main(argv=None):
 
     # 1. Design (lengths in metres). The default heights grids go from 32 samples to
     #    twice the target's pixels, coarse to fine.
-    design = jc.design_lens(target, width=0.1, height=0.1, thickness=0.01, throw=0.5, ior=1.5)
+    design = jc.design_lens(
+        target, width=0.1, height=0.1, thickness=0.01, screen_distance=0.5, ior=1.5
+    )
     print(f"designed in {design.timings['total']:.1f} s: {design.timings}")
     for level in design.levels:
         print(

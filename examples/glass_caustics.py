@@ -40,7 +40,7 @@ lens = jc.LensScene(
     jc.DirectionalLight.from_angles(zenith_deg=0.0),
     jc.PlaneReceiver((-0.02, 0.12, -0.02, 0.12), (128, 128)),  # the screen's pixels
     thickness=0.01,
-    throw=0.3,
+    screen_distance=0.3,
     ior=1.5,
 )
 # 129 x 129 photons make 2 x 128 x 128 caustic triangles, each spreading the light of its

@@ -1,22 +1,27 @@
 """jaxcaustics: differentiable, jit-compiled caustics in JAX.
 
-Methods: `two_pass` (Yuksel & Keyser, water), `caustic_triangles` (Umenhoffer et al.,
-lens and mesh scenes), `caustics_mapping` (Shah et al.'s splatted caustic maps),
-`adaptive_caustic_map` (Wyman & Nichols) and `spot_lights` (Liu et al.'s caustic spot
-lights: `fit_spot_lights`, `render_spot_lights`, and for a moving light
-`precompute_spot_lights` / `interpolate_spot_lights`), all reachable through `render`.
+The package is laid out by stage: `scene` (what is lit), `trace` (rays through it),
+`reconstruct` (photons to pixels), `methods` (the five methods, `render`), `inverse`
+(lens design, water recovery), `io` and `cli`; `reference` is the NumPy tracer (no JAX).
+
+Methods, each an Equinox module of its knobs (and a function of the same knobs):
+`TwoPass` / `two_pass` (Yuksel & Keyser, water), `CausticTriangles` / `caustic_triangles`
+(Umenhoffer et al., lens and mesh scenes), `CausticsMapping` / `caustics_mapping` (Shah
+et al.'s splatted caustic maps), `AdaptiveCausticMap` / `adaptive_caustic_map` (Wyman &
+Nichols) and `SpotLightMethod` / `spot_lights` (Liu et al.'s caustic spot lights:
+`fit_spot_lights`, `render_spot_lights`, and for a moving light `precompute_spot_lights`
+/ `interpolate_spot_lights`), all reachable through `render(scene, method)` with an
+instance or a name.
 
 Build a scene (`WaterScene`: a `HeightField` water surface; `LensScene`: a glass slab
 with a height-field top; `MeshScene`: a glass or mirror `Mesh` with optional occluders;
 `EllipsoidScene`: a glass `Ellipsoid` or sphere; each with a `DirectionalLight` or
 `PointLight` and a `PlaneReceiver`), then `render` it.
-The NumPy reference lives in `jaxcaustics.reference` and imports no JAX.
 
 Inverse problems: `design_lens` (a caustic lens for a target picture, started from the
-optimal transport `transport_map`; `export_lens`
-writes it for the workshop, `manufacturability` reports whether it can be milled,
-`verify_lens` renders the exported solid with the reference) and `recover_surface` (a
-water surface from its caustic).
+optimal transport `transport_map`; `export_lens` writes it for the workshop,
+`manufacturability` reports whether it can be milled, `verify_lens` renders the exported
+solid with the reference) and `recover_surface` (a water surface from its caustic).
 """
 
 import importlib.metadata

@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import math
 import numbers
+import warnings
 
 import jax
 import jax.numpy as jnp
@@ -212,3 +213,29 @@ def check_photon_work(photons: int, batches: int, knob: str) -> None:
             f"{photons} photons in batches under `memory_limit` take {batches} batches, over "
             f"{MAX_BATCHES} (2^20): raise `memory_limit` or pass fewer `{knob}`"
         )
+
+
+# --------------------------------------------------------------------------- renamed keywords
+
+
+def renamed_keyword(where: str, old: str, new: str, old_value, new_value):
+    """The value of keyword `new`, or of its deprecated name `old` (a `DeprecationWarning`
+    saying so) when the caller passed `old_value` (not ``None``); both at once is a
+    `ValueError`."""
+    if old_value is None:
+        return new_value
+    if new_value is not None:
+        raise ValueError(f"{where}: pass `{new}` only (`{old}` is its deprecated name)")
+    warnings.warn(
+        f"{where}: `{old}` is deprecated, pass `{new}` (in jaxcaustics, as in Optimistix, "
+        "`throw` means raising on failure)",
+        DeprecationWarning,
+        stacklevel=3,
+    )
+    return old_value
+
+
+def is_distance(value) -> bool:
+    """Whether `value` is a number that is not a bool: the old `throw` (a distance in
+    metres) as opposed to the new one (raise or not)."""
+    return isinstance(value, numbers.Real) and not isinstance(value, bool | np.bool_)

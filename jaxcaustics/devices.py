@@ -253,7 +253,7 @@ def stack_scenes(scenes: Sequence):
     **Arguments:** `scenes`, a non-empty sequence of scenes of one type that share every
     static part (indices of refraction, Fresnel, boundary mode, receiver shape, ...) and
     the shapes of their arrays (heights grid, ...); their array values (heights, extents,
-    depths, light directions, throws, ...) may differ.
+    depths, light directions, screen_distances, ...) may differ.
 
     **Returns:** a scene of the same type with arrays of shape ``(len(scenes), ...)``.
     Raises a `ValueError` naming the first scene (``scenes[i]``) and field that differ.

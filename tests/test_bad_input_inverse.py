@@ -73,7 +73,7 @@ def blob(n=16):
 
 # ------------------------------------------------------------------ design_lens
 
-SPEC = dict(width=0.1, height=0.1, thickness=0.02, throw=0.5, levels=(16,))
+SPEC = dict(width=0.1, height=0.1, thickness=0.02, screen_distance=0.5, levels=(16,))
 
 
 @pytest.mark.parametrize(
@@ -94,8 +94,8 @@ SPEC = dict(width=0.1, height=0.1, thickness=0.02, throw=0.5, levels=(16,))
         (dict(floor=True, start="poisson"), "floor"),
         (dict(warn_error=True), "warn_error"),
         (dict(warn_error=INF), "warn_error"),
-        (dict(throw_errors="no"), "throw_errors"),
-        (dict(throw_errors=None), "throw_errors"),
+        (dict(throw="no"), "throw"),
+        (dict(throw=None), "throw"),
         (dict(callback=3), "callback"),
         (dict(transport_iterations=10**12), "transport_iterations"),
         (dict(refine_steps=2.0), "refine_steps"),
@@ -123,12 +123,12 @@ def test_design_lens_refuses_targets(forbid, target, name):
 @pytest.mark.parametrize(
     ("kwargs", "name"),
     [
-        (dict(throws="0.5"), "throws"),  # iterated character by character
-        (dict(throws=["0.5"]), "throws[0]"),  # a string was a number
-        (dict(throws=[0.5, NAN]), "throws[1]"),
-        (dict(throws=[[0.5]]), "throws[0]"),
-        (dict(throws=[0.5], per_device="x"), "per_device"),  # only after the set-up
-        (dict(throws=[0.5], throw_errors="x"), "throw_errors"),
+        (dict(screen_distances="0.5"), "screen_distances"),  # iterated character by character
+        (dict(screen_distances=["0.5"]), "screen_distances[0]"),  # a string was a number
+        (dict(screen_distances=[0.5, NAN]), "screen_distances[1]"),
+        (dict(screen_distances=[[0.5]]), "screen_distances[0]"),
+        (dict(screen_distances=[0.5], per_device="x"), "per_device"),  # only after the set-up
+        (dict(screen_distances=[0.5], throw="x"), "throw"),
     ],
 )
 def test_design_lens_variants_refuses(forbid, kwargs, name):
@@ -236,7 +236,7 @@ LENS = jc.LensScene(
     jc.DirectionalLight.from_angles(0.0),
     jc.PlaneReceiver((-0.02, 0.12, -0.02, 0.12), (32, 32)),
     thickness=0.01,
-    throw=0.3,
+    screen_distance=0.3,
 )
 SCREEN = np.ones((32, 32))
 
@@ -538,7 +538,7 @@ def test_runaway_conjugate_gradient_steps_are_refused(solve):
     target = np.ones((16, 16))
     with pytest.raises(ValueError, match="`cg_steps`"):
         if solve == "design":
-            jc.design_lens(target, width=0.05, height=0.05, thickness=0.01, throw=0.5,
+            jc.design_lens(target, width=0.05, height=0.05, thickness=0.01, screen_distance=0.5,
                            cg_steps=10**9)  # fmt: skip
         else:
             light = jc.DirectionalLight([0.0, 0.0, -1.0])

@@ -297,7 +297,7 @@ def test_bad_arguments_raise_clear_errors(ball):
         jc.DirectionalLight.from_angles(0.0),
         jc.PlaneReceiver((0.0, 1.0, 0.0, 1.0), (4, 4)),
         thickness=0.1,
-        throw=0.5,
+        screen_distance=0.5,
     )
     with pytest.raises(ValueError, match="caustic_triangles"):
         jc.adaptive_caustic_map(lens)

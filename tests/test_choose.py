@@ -29,7 +29,7 @@ def lens(shape=(8, 8)):
         jc.DirectionalLight.from_angles(10.0),
         jc.PlaneReceiver(APERTURE, shape),
         thickness=0.01,
-        throw=0.3,
+        screen_distance=0.3,
     )
 
 

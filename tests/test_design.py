@@ -11,7 +11,7 @@ from jaxcaustics import DirectionalLight, PointLight
 from jaxcaustics.inverse.design import design_lens
 from jaxcaustics.reference import trace_lens
 
-SPEC = dict(width=0.1, height=0.1, thickness=0.02, throw=0.5)
+SPEC = dict(width=0.1, height=0.1, thickness=0.02, screen_distance=0.5)
 SMALL = dict(levels=(16,), max_steps=15, start="poisson")  # the irradiance solve
 
 
@@ -51,8 +51,8 @@ def no_optimisation(monkeypatch):
     [
         (dict(thickness=-0.01), "thickness"),
         (dict(thickness=0.0), "thickness"),
-        (dict(throw=0.0), "throw"),
-        (dict(throw=-1.0), "throw"),
+        (dict(screen_distance=0.0), "screen_distance"),
+        (dict(screen_distance=-1.0), "screen_distance"),
         (dict(width=0.0), "width"),
         (dict(height=float("nan")), "height"),
         (dict(ior=1.0), "ior"),
@@ -243,7 +243,7 @@ def test_camera_lens_meets_the_goal_from_its_exported_files(tmp_path):
     from jaxcaustics import HeightField, LensScene, export_lens, read_exr, relative_l2
 
     target = design_module._area_average(data.camera().astype(float), (128, 128))
-    d = design_lens(target, width=2.0, height=2.0, thickness=0.5, throw=7.0, ior=1.5)
+    d = design_lens(target, width=2.0, height=2.0, thickness=0.5, screen_distance=7.0, ior=1.5)
     paths = export_lens(d.scene, tmp_path, formats=("stl",))
     solid = trimesh.load(paths["stl"])
     assert solid.is_watertight
@@ -356,7 +356,7 @@ DEFAULTS = {
     k: p.default
     for k, p in __import__("inspect").signature(design_lens).parameters.items()
     if p.default is not __import__("inspect").Parameter.empty
-    and k not in ("throw_errors", "callback")
+    and k not in ("throw", "throw_errors", "callback", "screen_distance")
 }
 
 
@@ -409,7 +409,7 @@ def test_edges_under_leaning_light_get_a_bevel_and_the_band_it_takes_no_transpor
     cell = 2.0 / 64
     h = np.full((64, 64), -0.1)
     h[32, 32] = 0.0
-    setup = SimpleNamespace(aperture=(-1.0, 1.0, -1.0, 1.0), throw=7.0, thickness=0.5)
+    setup = SimpleNamespace(aperture=(-1.0, 1.0, -1.0, 1.0), screen_distance=7.0, thickness=0.5)
     setup.light = DirectionalLight.from_angles(0.0)
     weight, keep, k = _edge_bevel(setup, h)
     assert k == 0 and not weight.any() and np.all(keep == 1.0)
@@ -486,7 +486,7 @@ def test_a_ring_wider_than_the_bevel_can_take_warns():
 
     h = np.full((16, 16), -2.0)
     h[8, 8] = 0.0
-    setup = SimpleNamespace(aperture=(-1.0, 1.0, -1.0, 1.0), throw=7.0, thickness=2.5)
+    setup = SimpleNamespace(aperture=(-1.0, 1.0, -1.0, 1.0), screen_distance=7.0, thickness=2.5)
     setup.light = DirectionalLight.from_angles(20.0)  # ring 0.73 m: 5.8 cells of 0.125 m
     with pytest.warns(UserWarning, match="more than the bevel's 4"):
         weight, keep, k = _edge_bevel(setup, h)
@@ -507,7 +507,7 @@ def test_point_light_design_bevels_its_edges_and_matches_by_the_reference():
     from jaxcaustics import PointLight
 
     target = silhouette()
-    light = PointLight(np.array([0.0, 0.0, 0.52 + 1.5 * 0.5]), 1.0)  # 1.5 throws above
+    light = PointLight(np.array([0.0, 0.0, 0.52 + 1.5 * 0.5]), 1.0)  # 1.5 screen distances above
     d = design_lens(target, **SPEC, light=light)
     transport, fit = d.levels[0], d.levels[1]
     assert transport["steps"] > 30 and fit["bevel_cells"] > 0
@@ -649,7 +649,7 @@ def test_the_rim_of_a_design_steers_its_light_like_its_neighbours(silhouette_des
 
     sc = d.scene
     field = HeightField(d.heights, sc.surface.extent, "clamp")
-    clamped = LensScene(field, sc.light, sc.receiver, sc.thickness, sc.throw, ior=sc.ior)
+    clamped = LensScene(field, sc.light, sc.receiver, sc.thickness, sc.screen_distance, ior=sc.ior)
     # measured 5.5% and 100%
     assert on_black(d.scene) < 0.2 and on_black(clamped) > 0.6, (
         on_black(d.scene),

@@ -13,6 +13,37 @@ CENTER = np.array([0.0, 0.0, 1.0])
 BOX_HALF, BOX_TOP = 0.2, 0.3  # box [-0.2, 0.2]^2 x [0, 0.3] standing on the receiver
 
 
+# test helpers (they served only the tests in the package)
+
+
+def direction_to_texel(directions, resolution: int):
+    """Face and pixel coordinates of directions on an ``R x R`` cube map.
+
+    **Returns:** ``(face, x, y)``: the face (`direction_face`) and the pixel coordinates
+    on it, in ``[0, R]`` (texel ``(i, j)`` = ``(floor(y), floor(x))``, clipped to
+    ``R - 1`` on the far edges).
+    """
+    face = dm.direction_face(directions)
+    x, y, _ = dm.face_coordinates(directions, face, resolution)
+    return face, x, y
+
+
+def format_tracing_table(table: dict[str, np.ndarray]) -> str:
+    """`tracing_error_table` as plain text: one row per (steps, iterations)."""
+    lines = [
+        f"{'steps':>5} {'secant':>6} {'median m':>10} {'p95 m':>10} {'max m':>10}"
+        f" {'missed':>7} {'false':>7}"
+    ]
+    for i, n in enumerate(table["linear_steps"]):
+        for j, it in enumerate(table["secant_iterations"]):
+            lines.append(
+                f"{n:>5d} {it:>6d} {table['median'][i, j]:>10.2e} {table['p95'][i, j]:>10.2e}"
+                f" {table['max'][i, j]:>10.2e} {table['missed'][i, j]:>7.4f}"
+                f" {table['false'][i, j]:>7.4f}"
+            )
+    return "\n".join(lines)
+
+
 def _box():
     box = trimesh.creation.box(extents=(2 * BOX_HALF, 2 * BOX_HALF, BOX_TOP))
     box.apply_translation((0.0, 0.0, BOX_TOP / 2))
@@ -54,14 +85,14 @@ def test_direction_to_texel_face_choice_and_round_trip(rng):
     assert int(dm.direction_face(jnp.array([0.5, -0.9, 0.1]))) == 3
     # texel centre directions map back to their own texel centres
     w = dm.texel_directions(r)
-    face, x, y = dm.direction_to_texel(w * 3.7, r)  # any length
+    face, x, y = direction_to_texel(w * 3.7, r)  # any length
     f_exp, i_exp, j_exp = np.meshgrid(np.arange(6), np.arange(r), np.arange(r), indexing="ij")
     np.testing.assert_array_equal(face, f_exp)
     np.testing.assert_allclose(x, j_exp + 0.5, atol=1e-12)
     np.testing.assert_allclose(y, i_exp + 0.5, atol=1e-12)
     # random directions: the face is the largest component, the projection lands inside
     d = rng.normal(size=(500, 3))
-    face, x, y = dm.direction_to_texel(jnp.asarray(d), r)
+    face, x, y = direction_to_texel(jnp.asarray(d), r)
     axis = np.argmax(np.abs(d), axis=1)
     np.testing.assert_array_equal(face, 2 * axis + (d[np.arange(500), axis] < 0))
     assert np.all((x >= 0) & (x <= r) & (y >= 0) & (y <= r))
@@ -167,7 +198,7 @@ def test_tracing_error_table(box_scene):
     occluders, dmap = box_scene
     o, d = _rays(400)
     table = dm.tracing_error_table(dmap, o, d, occluders)
-    print("\n" + dm.format_tracing_table(table))
+    print("\n" + format_tracing_table(table))
     med, p95 = table["median"], table["p95"]
     # secant iterations: the linear search alone is off by about a step, one secant step
     # lands on the planar facets (exact up to rounding), more never hurt

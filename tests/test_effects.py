@@ -177,7 +177,7 @@ def _lens(ior=1.5, fresnel=False):
         jc.DirectionalLight.from_angles(0.0),
         jc.PlaneReceiver(APERTURE, (10, 10)),
         thickness=0.01,
-        throw=0.3,
+        screen_distance=0.3,
         ior=ior,
         fresnel=fresnel,
     )

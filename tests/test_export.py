@@ -36,7 +36,7 @@ def _lens_scene(surface, thickness):
         jc.DirectionalLight.from_angles(0.0),
         jc.PlaneReceiver(np.asarray(surface.extent), (8, 8)),
         thickness=thickness,
-        throw=0.3,
+        screen_distance=0.3,
     )
 
 

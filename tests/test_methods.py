@@ -41,7 +41,7 @@ def lens(ior=1.5):
         jc.DirectionalLight.from_angles(10.0),
         jc.PlaneReceiver(APERTURE, (8, 8)),
         thickness=0.01,
-        throw=0.3,
+        screen_distance=0.3,
         ior=ior,
     )
 

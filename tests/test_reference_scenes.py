@@ -65,7 +65,7 @@ def _lens_scene(
     shape=(12, 12),
     *,
     thickness=0.05,
-    throw=0.5,
+    screen_distance=0.5,
     light=None,
     rotation=0.0,
     **kwargs,
@@ -76,7 +76,7 @@ def _lens_scene(
         light if light is not None else _light(),
         jc.PlaneReceiver(np.asarray(receiver, np.float64), shape),
         np.asarray(thickness, np.float64),
-        np.asarray(throw, np.float64),
+        np.asarray(screen_distance, np.float64),
         **kwargs,
     )
 
@@ -146,17 +146,19 @@ def test_flat_slab_under_normal_light_gives_one_and_fresnel_gives_both_transmitt
 
 
 def test_oblique_light_through_a_flat_slab_shifts_by_the_analytic_displacement():
-    zenith, azimuth, n, thickness, throw = 35.0, 30.0, 1.6, 0.08, 0.4
+    zenith, azimuth, n, thickness, screen_distance = 35.0, 30.0, 1.6, 0.08, 0.4
     d = _oblique(zenith, azimuth)
     scene = _lens_scene(
-        light=_light(d), thickness=thickness, throw=throw, ior=n, fresnel=True,
+        light=_light(d), thickness=thickness, screen_distance=screen_distance, ior=n, fresnel=True,
         receiver=(-1.0, 1.0, -1.0, 1.0), shape=(20, 20),
     )  # fmt: skip
     rng = np.random.default_rng(1)
     xs, ys = rng.uniform(-0.5, 0.5, 300), rng.uniform(-0.5, 0.5, 300)
     landing, weight, alive = ref.trace_lens_photons(scene, xs, ys)
     sin_t = math.sin(math.radians(zenith)) / n
-    shift = thickness * sin_t / math.sqrt(1 - sin_t**2) + throw * math.tan(math.radians(zenith))
+    shift = thickness * sin_t / math.sqrt(1 - sin_t**2) + screen_distance * math.tan(
+        math.radians(zenith)
+    )
     a = math.radians(azimuth)
     assert alive.all()
     np.testing.assert_allclose(landing[0, :, 0], xs + shift * math.cos(a), atol=1e-12)
@@ -175,20 +177,22 @@ def test_oblique_light_through_a_flat_slab_shifts_by_the_analytic_displacement()
 
 
 def test_point_light_through_a_flat_slab_lands_at_the_analytic_radius():
-    n, thickness, throw, height, intensity = 1.5, 0.05, 0.5, 1.3, 2.0
+    n, thickness, screen_distance, height, intensity = 1.5, 0.05, 0.5, 1.3, 2.0
     light = _light(position=(0.1, -0.05, height), intensity=intensity)
-    scene = _lens_scene(light=light, thickness=thickness, throw=throw, ior=n, fresnel=True)
+    scene = _lens_scene(
+        light=light, thickness=thickness, screen_distance=screen_distance, ior=n, fresnel=True
+    )
     rng = np.random.default_rng(2)
     xs, ys = rng.uniform(-0.5, 0.5, 300), rng.uniform(-0.5, 0.5, 300)
     landing, weight, alive = ref.trace_lens_photons(scene, xs, ys)
     assert alive.all()
     rx, ry = xs - 0.1, ys + 0.05
     rho = np.hypot(rx, ry)
-    h = height - thickness - throw  # light above the rest plane
+    h = height - thickness - screen_distance  # light above the rest plane
     sin_i = rho / np.hypot(rho, h)
     cos_i = h / np.hypot(rho, h)
     sin_t = sin_i / n
-    radius = rho + thickness * sin_t / np.sqrt(1 - sin_t**2) + throw * sin_i / cos_i
+    radius = rho + thickness * sin_t / np.sqrt(1 - sin_t**2) + screen_distance * sin_i / cos_i
     np.testing.assert_allclose(landing[0, :, 0], 0.1 + radius * rx / rho, atol=1e-12)
     np.testing.assert_allclose(landing[0, :, 1], -0.05 + radius * ry / rho, atol=1e-12)
     cos_t = np.sqrt(1 - sin_t**2)
@@ -203,7 +207,7 @@ def test_point_light_gives_the_solid_angle_of_each_pixel_through_an_index_one_le
     top = 0.5  # the rest plane: magnification height / (height - top) = 2
     scene = _lens_scene(
         _bumps(16), light=_light(position=(0.0, 0.0, height), intensity=intensity),
-        thickness=0.05, throw=top - 0.05, ior=1.0, receiver=(-1.0, 1.0, -1.0, 1.0),
+        thickness=0.05, screen_distance=top - 0.05, ior=1.0, receiver=(-1.0, 1.0, -1.0, 1.0),
         shape=(10, 10),
     )  # fmt: skip
     image = ref.trace_lens(scene, 80)  # 8 x 8 photons per pixel
@@ -224,7 +228,8 @@ def test_point_light_flux_is_conserved_through_a_wavy_lens():
     height, intensity = 1.2, 1.5
     scene = _lens_scene(
         _bumps(24, amplitude=0.01), light=_light(position=(0.05, 0.0, height), intensity=intensity),
-        thickness=0.05, throw=0.45, ior=1.5, receiver=(-2.0, 2.0, -2.0, 2.0), shape=(8, 8),
+        thickness=0.05, screen_distance=0.45, ior=1.5, receiver=(-2.0, 2.0, -2.0, 2.0),
+        shape=(8, 8),
     )  # fmt: skip
     image, stats = ref.trace_lens(scene, 120, return_stats=True)
     assert stats["on_receiver"] == stats["emitted"]
@@ -273,8 +278,10 @@ def test_plano_convex_lens_focuses_at_its_back_focal_distance():
     rho = 0.002
     xs, ys = rho * np.cos(phi), rho * np.sin(phi)
     radial = []
-    for throw in (0.4, 0.6):
-        scene = _lens_scene(heights, ext, thickness=thickness, throw=throw, ior=n)
+    for screen_distance in (0.4, 0.6):
+        scene = _lens_scene(
+            heights, ext, thickness=thickness, screen_distance=screen_distance, ior=n
+        )
         landing, _, alive = ref.trace_lens_photons(scene, xs, ys)
         assert alive.all()
         radial.append(landing[0, :, 0] * np.cos(phi) + landing[0, :, 1] * np.sin(phi))
@@ -283,10 +290,11 @@ def test_plano_convex_lens_focuses_at_its_back_focal_distance():
     # ... and the flux concentrates there, not at half the distance
     shape, rec = (21, 21), (-0.105, 0.105, -0.105, 0.105)
     focused = ref.trace_lens(
-        _lens_scene(heights, ext, rec, shape, thickness=thickness, throw=bfd, ior=n), 100
+        _lens_scene(heights, ext, rec, shape, thickness=thickness, screen_distance=bfd, ior=n), 100
     )
     defocused = ref.trace_lens(
-        _lens_scene(heights, ext, rec, shape, thickness=thickness, throw=bfd / 2, ior=n), 100
+        _lens_scene(heights, ext, rec, shape, thickness=thickness, screen_distance=bfd / 2, ior=n),
+        100,
     )
     area = 0.01**2
     assert focused.sum() * area == pytest.approx(0.2**2, rel=1e-12)
@@ -643,7 +651,7 @@ def test_lens_and_mesh_tracers_run_on_duck_typed_scenes_without_jax():
         rec = ns(extent=[-0.6, 0.6, -0.6, 0.6], shape=(12, 12))
         lens = ns(surface=ns(heights=[[0.0] * 4] * 4, extent=[-0.5, 0.5, -0.5, 0.5],
                   boundary="clamp"), light=ns(direction=[0.0, 0.0, -2.0]), receiver=rec,
-                  thickness=0.05, throw=0.5, ior=1.5, fresnel=False)
+                  thickness=0.05, screen_distance=0.5, ior=1.5, fresnel=False)
         image = mod.trace_lens(lens, 50)
         assert image.shape == (12, 12) and abs(image[1:-1, 1:-1] - 1).max() < 1e-12
         v = [[-0.2, -0.2, 0.3], [0.2, -0.2, 0.3], [0.2, 0.2, 0.3], [-0.2, 0.2, 0.3]]

@@ -15,7 +15,7 @@ def _lens(**over):
         light=jc.DirectionalLight.from_angles(10.0),
         receiver=jc.PlaneReceiver(APERTURE, (8, 8)),
         thickness=0.01,
-        throw=0.3,
+        screen_distance=0.3,
     )
     kw.update(over)
     return jc.LensScene(**kw)
@@ -55,7 +55,7 @@ def _mesh_scene(**over):
     "make, match",
     [
         (lambda: _lens(thickness=0.0), "thickness"),
-        (lambda: _lens(throw=-1.0), "throw"),
+        (lambda: _lens(screen_distance=-1.0), "screen_distance"),
         (lambda: _lens(ior=()), "ior"),
         (lambda: _lens(light="sun"), "light"),
         (lambda: _lens(surface=np.zeros((4, 4))), "surface"),

@@ -74,7 +74,7 @@ def test_every_method_refuses_a_changed_light_or_receiver(method, change, field)
         (water, lambda s: s.surface.heights, jnp.full((8, 8), -0.6), "scene.surface"),
         (water, lambda s: s.rest_depth, jnp.array(-0.5), "scene.rest_depth"),
         (water, lambda s: s.surface.extent, jnp.array([0.0, 0, 0, 1]), "scene.surface.extent"),
-        (lens, lambda s: s.throw, jnp.array(0.0), "scene.throw"),
+        (lens, lambda s: s.screen_distance, jnp.array(0.0), "scene.screen_distance"),
         (lens, lambda s: s.thickness, jnp.array(-0.01), "scene.thickness"),
         (lens, lambda s: s.surface.heights, jnp.full((8, 8), -0.02), "scene.surface"),
         (

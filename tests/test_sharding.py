@@ -59,7 +59,7 @@ SCRIPT = textwrap.dedent(
         assert images.shape == (5, 12, 12)
         np.testing.assert_allclose(gather_to_host(images), single, rtol=1e-12, atol=1e-12)
 
-    # 4 lenses over a spread of throws, caustic triangles ("auto" window: the largest)
+    # 4 lenses over a spread of screen_distances, caustic triangles ("auto" window: the largest)
     x = np.linspace(-1.0, 1.0, 10)
     bowl = -0.002 * (x[None] ** 2 + x[:, None] ** 2)
 
@@ -99,7 +99,7 @@ SCRIPT = textwrap.dedent(
         assert float(jnp.abs(g1).max()) > 1.0
         np.testing.assert_allclose(g4, g1, rtol=1e-10, atol=1e-10)
 
-        # design variants over three throws, against design_lens one by one
+        # design variants over three screen_distances, against design_lens one by one
         from jaxcaustics.inverse.design import design_lens, design_lens_variants
 
         y, x = np.mgrid[-1:1:12j, -1:1:12j]
@@ -108,18 +108,18 @@ SCRIPT = textwrap.dedent(
         # default): both must be told it, or they solve different problems
         spec = dict(width=0.05, height=0.05, thickness=0.01, levels=(8,), max_steps=4,
                     predict_photons=25, start="poisson")
-        throws = [0.2, 0.3, 0.45]
-        variants = design_lens_variants(target, throws=throws, **spec)
-        for throw, got in zip(throws, variants):
-            want = design_lens(target, throw=throw, **spec)
+        screen_distances = [0.2, 0.3, 0.45]
+        variants = design_lens_variants(target, screen_distances=screen_distances, **spec)
+        for screen_distance, got in zip(screen_distances, variants):
+            want = design_lens(target, screen_distance=screen_distance, **spec)
             # the same steps, compiled as one loop instead of step by step
             np.testing.assert_allclose(got.heights, want.heights, rtol=1e-8, atol=1e-12)
             np.testing.assert_allclose(got.loss_history, want.loss_history, rtol=1e-8)
             np.testing.assert_allclose(got.predicted, want.predicted, rtol=1e-8, atol=1e-8)
             assert got.levels[0]["steps"] == want.levels[0]["steps"]
             assert bool(got.result == want.result)
-            assert float(got.scene.throw) == throw
-        # a longer throw needs a shallower relief for the same caustic
+            assert float(got.scene.screen_distance) == screen_distance
+        # a longer screen_distance needs a shallower relief for the same caustic
         reliefs = [d.relief for d in variants]
         assert reliefs[0] > reliefs[1] > reliefs[2] > 0
     print("OK")
@@ -228,12 +228,12 @@ SPEC = dict(width=0.05, height=0.05, thickness=0.01, levels=(8,), max_steps=2)
 @pytest.mark.parametrize(
     ("kwargs", "match"),
     [
-        (dict(throws=[]), "throws"),
-        (dict(throws=[0.2, -1.0]), r"throws\[1\].*throw"),
-        (dict(throws=[0.2], throw=0.3), "throw"),
-        (dict(throws=[0.2], callback=print), "callback"),
-        (dict(throws=[0.2], devices=0), "devices"),
-        (dict(throws=[0.2], spline=3), "spline"),
+        (dict(screen_distances=[]), "screen_distances"),
+        (dict(screen_distances=[0.2, -1.0]), r"screen_distances\[1\].*screen_distance"),
+        (dict(screen_distances=[0.2], screen_distance=0.3), "screen_distance"),
+        (dict(screen_distances=[0.2], callback=print), "callback"),
+        (dict(screen_distances=[0.2], devices=0), "devices"),
+        (dict(screen_distances=[0.2], spline=3), "spline"),
     ],
 )
 def test_design_variants_reject_bad_arguments(kwargs, match, monkeypatch):

@@ -82,7 +82,7 @@ def loss(heights, devices):
         lens.light,
         lens.receiver,
         lens.thickness,
-        lens.throw,
+        lens.screen_distance,
     )
     image = caustic_triangles(scene, photons=21, window=6, devices=devices).image
     return jnp.sum(weights * image)

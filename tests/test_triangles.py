@@ -21,7 +21,7 @@ def lens_scene(
     heights,
     *,
     light=None,
-    throw=0.2,
+    screen_distance=0.2,
     thickness=0.01,
     shape=(48, 48),
     dtype=None,
@@ -37,7 +37,7 @@ def lens_scene(
         light,
         jc.PlaneReceiver(np.asarray(screen, dtype), shape),
         np.asarray(thickness, dtype),
-        np.asarray(throw, dtype),
+        np.asarray(screen_distance, dtype),
         **kw,
     )
 
@@ -89,13 +89,13 @@ def test_flat_slab_fresnel_is_the_product_of_both_faces():
 
 
 def test_oblique_flat_slab_shifts_the_aperture_by_snell():
-    zenith, ior, thickness, throw = 25.0, 1.5, 0.02, 0.05
+    zenith, ior, thickness, screen_distance = 25.0, 1.5, 0.02, 0.05
     light = jc.DirectionalLight.from_angles(zenith, 0.0)
     scene = lens_scene(
         np.zeros((8, 8)),
         light=light,
         thickness=thickness,
-        throw=throw,
+        screen_distance=screen_distance,
         screen=(-0.01, 0.15, -0.03, 0.13),
         shape=(80, 80),
     )
@@ -107,7 +107,9 @@ def test_oblique_flat_slab_shifts_the_aperture_by_snell():
     centroid_x = (image.sum(0) * xs).sum() / image.sum()
     centroid_y = (image.sum(1) * ys).sum() / image.sum()
     sin_t = math.sin(math.radians(zenith)) / ior
-    shift = thickness * sin_t / math.sqrt(1 - sin_t**2) + throw * math.tan(math.radians(zenith))
+    shift = thickness * sin_t / math.sqrt(1 - sin_t**2) + screen_distance * math.tan(
+        math.radians(zenith)
+    )
     assert centroid_x == pytest.approx(0.05 + shift, abs=1e-9)
     assert centroid_y == pytest.approx(0.05, abs=1e-9)
     assert float(result.missed_flux_fraction[0]) < 1e-12
@@ -121,7 +123,7 @@ def test_sharp_focus_is_finite_in_value_and_gradient(dtype, reconstruction):
     focal = 0.2
     heights = plano_convex(24, focal, dtype=dtype)
     # back focal distance of a plano-convex lens: f - thickness / n
-    scene = lens_scene(heights, thickness=0.04, throw=focal - 0.04 / 1.5, dtype=dtype)
+    scene = lens_scene(heights, thickness=0.04, screen_distance=focal - 0.04 / 1.5, dtype=dtype)
 
     def peak(h):
         s = eqx_replace_heights(scene, h)
@@ -148,7 +150,7 @@ def test_fold_overs_keep_their_flux(dtype, reconstruction):
     # its line focus: the image is mirrored along x, so every triangle is folded over
     heights = plano_convex(24, 0.3, cylindrical=True, dtype=dtype)
     scene = lens_scene(
-        heights, thickness=0.02, throw=0.5, screen=(-0.05, 0.15, -0.05, 0.15), dtype=dtype
+        heights, thickness=0.02, screen_distance=0.5, screen=(-0.05, 0.15, -0.05, 0.15), dtype=dtype
     )
 
     def render(h):
@@ -178,7 +180,9 @@ def test_gradients_match_finite_differences_away_from_folds(rng):
     x = (np.arange(12) + 0.5) / 12 * 2 - 1
     xx, yy = np.meshgrid(x, x)
     heights = 4e-4 * np.exp(-((xx - 0.1) ** 2 + yy**2) / 0.3)
-    scene = lens_scene(heights, light=jc.DirectionalLight.from_angles(10.0, 40.0), throw=0.1)
+    scene = lens_scene(
+        heights, light=jc.DirectionalLight.from_angles(10.0, 40.0), screen_distance=0.1
+    )
     weights = jnp.asarray(rng.uniform(0.5, 1.5, scene.receiver.shape))
 
     def loss(h):
@@ -196,7 +200,9 @@ def test_gradients_match_finite_differences_away_from_folds(rng):
 
 def test_point_light_over_a_flat_slab_matches_the_inverse_square_law():
     light = jc.PointLight([0.05, 0.05, 2.0], intensity=3.0)
-    scene = lens_scene(np.zeros((8, 8)), light=light, ior=1.0 + 1e-12, thickness=0.01, throw=0.2)
+    scene = lens_scene(
+        np.zeros((8, 8)), light=light, ior=1.0 + 1e-12, thickness=0.01, screen_distance=0.2
+    )
     image = np.asarray(jc.caustic_triangles(scene, photons=65).image)
     # index ~1: the slab does nothing; the centre pixel gets I cos(theta) / r^2
     e = np.asarray(scene.receiver.extent)

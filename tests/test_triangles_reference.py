@@ -29,7 +29,7 @@ def smooth_lens(zenith):
     )
     screen = (-0.02, 0.12, -0.02, 0.12) if zenith == 0 else (0.0, 0.3, -0.05, 0.25)
     light = jc.DirectionalLight.from_angles(zenith, 20.0)
-    return lens_scene(heights, light=light, throw=0.3, screen=screen, shape=(64, 64))
+    return lens_scene(heights, light=light, screen_distance=0.3, screen=screen, shape=(64, 64))
 
 
 @functools.cache
@@ -111,7 +111,9 @@ def _point_lit_lens():
     heights = 1.5e-3 * np.exp(-((xx - 0.2) ** 2 + (yy + 0.1) ** 2) / 0.15)
     light = jc.PointLight([0.05, 0.04, 1.0])
     screen = (-0.02, 0.14, -0.02, 0.14)
-    return lens_scene(heights, light=light, throw=0.3, screen=screen, shape=(64, 64), fresnel=True)
+    return lens_scene(
+        heights, light=light, screen_distance=0.3, screen=screen, shape=(64, 64), fresnel=True
+    )
 
 
 # Measured with 129^2 photons (blurred rel. L1, flux ratio): occluded sphere 0.018, 0.983

@@ -18,7 +18,7 @@ def bumpy_lens():
         jc.DirectionalLight.from_angles(0.0),
         jc.PlaneReceiver((-0.02, 0.12, -0.02, 0.12), (32, 32)),
         thickness=0.01,
-        throw=0.3,
+        screen_distance=0.3,
     )
 
 

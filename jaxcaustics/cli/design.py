@@ -197,7 +197,12 @@ def add_design(subparsers) -> None:
         "--thickness", type=length, default=0.01, help="blank thickness (default 10mm)"
     )
     design.add_argument(
-        "--throw", type=length, default=0.5, help="lens to screen distance (default 500mm)"
+        "--screen-distance",
+        "--throw",  # its old name
+        dest="screen_distance",
+        type=length,
+        default=0.5,
+        help="lens to screen distance (default 500mm; --throw is its old name)",
     )
     design.add_argument(
         "--ior", type=number(1.0, strict=True), default=1.5, help="index of refraction (1.5)"
@@ -253,7 +258,7 @@ _DESIGN_FLAGS = {
     "width": "--width",
     "height": "--height",
     "thickness": "--thickness",
-    "throw": "--throw",
+    "screen_distance": "--screen-distance",
     "ior": "--ior",
     "levels": "--levels",
     "heights_shape": "--levels",
@@ -310,7 +315,11 @@ def run_design(args: argparse.Namespace) -> int:
     else:
         levels = list(default_levels(target.shape)) if args.levels is None else _levels(args.levels)
     spec = dict(
-        width=args.width, height=height, thickness=args.thickness, throw=args.throw, ior=args.ior
+        width=args.width,
+        height=height,
+        thickness=args.thickness,
+        screen_distance=args.screen_distance,
+        ior=args.ior,
     )
     final_shape = (max(4, round(levels[-1] * height / args.width)), levels[-1])
     losses: list[float] = []
@@ -332,7 +341,7 @@ def run_design(args: argparse.Namespace) -> int:
                 start=args.start,
                 max_relief=args.max_relief if k == len(levels) - 1 else None,
                 initial=initial,
-                throw_errors=False,
+                throw=False,
                 callback=lambda info: step_done(info, report),
                 **spec,
             )

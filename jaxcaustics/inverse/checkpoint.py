@@ -12,7 +12,8 @@ with array leaves). A checkpoint file holds a header (format, the state's tree s
 rounds done; NumPy ``.npy`` records) and then the leaves, written by
 `equinox.tree_serialise_leaves` and read back by `equinox.tree_deserialise_leaves` into
 the structure of the state a run starts from; the structure and every leaf's shape are
-checked on load (Equinox reads leaves in order and checks neither).
+checked on load (Equinox reads leaves in order and checks neither), and each leaf takes
+the dtype of the starting state's.
 """
 
 from __future__ import annotations
@@ -25,6 +26,7 @@ from typing import Any
 
 import equinox as eqx
 import jax
+import jax.numpy as jnp
 import numpy as np
 
 FORMAT = "jaxcaustics-checkpoint-2"
@@ -55,14 +57,23 @@ def load_checkpoint(path: str | os.PathLike, like: Any) -> tuple[Any, int]:
     mismatch = []  # Equinox wraps what a leaf raises: the message is kept here
 
     def leaf(f, old):
-        new = eqx.default_deserialise_filter_spec(f, old)
-        if np.shape(new) != np.shape(old):
+        # the leaves `eqx.tree_serialise_leaves` wrote (arrays and numbers), each read
+        # back in the type and dtype of `like`'s (a state built afresh may hold int32
+        # where the saved one held int64)
+        if not eqx.is_array_like(old):
+            return old
+        new = np.load(f, allow_pickle=False)
+        if new.shape != np.shape(old):
             mismatch.append(
-                f"`path` {str(path)!r} holds an array of shape {np.shape(new)} where "
+                f"`path` {str(path)!r} holds an array of shape {new.shape} where "
                 f"{np.shape(old)} is expected"
             )
             raise ValueError(mismatch[-1])
-        return new
+        if isinstance(old, jax.Array):
+            return jnp.asarray(new, dtype=old.dtype)
+        if isinstance(old, np.ndarray):
+            return new.astype(old.dtype)
+        return type(old)(new.item())
 
     try:
         with open(path, "rb") as f:

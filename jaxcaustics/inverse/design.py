@@ -1,7 +1,7 @@
 """Caustic lens design: from a target image to the height field of a lens (`design_lens`).
 
 The forward model is the lens scene (`LensScene`: screen ``z = 0``, flat bottom face at
-``z = throw``, top surface ``z = throw + thickness + H(x, y)``).
+``z = screen_distance``, top surface ``z = screen_distance + thickness + H(x, y)``).
 
 The method: the light transport equation on the lens plane. A photon grid over the
 aperture is traced exactly (the physics of `lens_photons`, the forward model of the
@@ -49,7 +49,7 @@ start, run after the fit instead, raised the error on a silhouette (relative L2 
 0.26, measured), since its logarithm needs light everywhere.
 
 Weak-lens relation (collimated light along ``-z``): a photon through the aperture point
-``p`` lands near ``p + D grad H(p)`` with ``D = (n - 1) (throw + thickness / n)``; the
+``p`` lands near ``p + D grad H(p)`` with ``D = (n - 1) (screen_distance + thickness / n)``; the
 continuity equation linearised gives ``D Laplacian(H) = -log(E / mean E)`` (bright
 target: locally convex lens).
 """
@@ -71,7 +71,15 @@ import jax.numpy as jnp
 import numpy as np
 import optimistix as optx
 
-from .._checks import check_bool, check_int, check_number, check_real_array, check_shape
+from .._checks import (
+    check_bool,
+    check_int,
+    check_number,
+    check_real_array,
+    check_shape,
+    is_distance,
+    renamed_keyword,
+)
 from ..devices import check_per_device, map_sharded, resolve_devices
 from ..methods.triangles.method import (
     band_bytes,
@@ -232,7 +240,9 @@ class _Problem(eqx.Module):
     scene: LensScene
     log_target: jax.Array  # (rows, cols) log of the screen irradiance to reach
     screen: jax.Array  # (4,) extent
-    weak: jax.Array  # D of the weak-lens relation (a leaf: designs for several throws batch)
+    weak: (
+        jax.Array
+    )  # D of the weak-lens relation (a leaf: designs for several screen_distances batch)
     grid: tuple[int, int] = eqx.field(static=True)  # photon grid (vertices)
     boundary_weight: float = eqx.field(static=True)
     regularization: float = eqx.field(static=True)
@@ -278,16 +288,16 @@ class _Problem(eqx.Module):
     def exit(self, hit_x, hit_y, hit_z, hx, hy, d):
         """Where a ray of direction `d` that hits the top surface at ``(hit_x, hit_y,
         hit_z)`` with slopes ``(hx, hy)`` lands on the screen: Snell at the top, the
-        glass down to the bottom face, Snell there, the throw."""
+        glass down to the bottom face, Snell there, the screen distance."""
         scene = self.scene
         inv = jax.lax.rsqrt(hx * hx + hy * hy + 1.0)
         normal = (-hx * inv, -hy * inv, inv)
         inside, _, _ = refract_components(d, normal, 1.0 / scene.ior)
-        s = (hit_z - scene.throw) / -jnp.minimum(inside[2], -1e-12)
+        s = (hit_z - scene.screen_distance) / -jnp.minimum(inside[2], -1e-12)
         bx, by = hit_x + s * inside[0], hit_y + s * inside[1]
         up = (jnp.zeros_like(hx), jnp.zeros_like(hx), jnp.ones_like(hx))
         out, _, _ = refract_components(inside, up, scene.ior)
-        t = scene.throw / -jnp.minimum(out[2], -1e-12)
+        t = scene.screen_distance / -jnp.minimum(out[2], -1e-12)
         return bx + t * out[0], by + t * out[1]
 
     def vertex_rays(self, h: jax.Array, sampling):
@@ -590,7 +600,7 @@ def _transport_goal(
     leaning light). Returns ``(goal_x, goal_y, transport)`` (metres; the
     `TransportMap`)."""
 
-    top = setup.throw + setup.thickness
+    top = setup.screen_distance + setup.thickness
     source = _source_density(setup.light, setup.aperture, shape, top)
     if keep is not None:
         source = source * keep
@@ -719,7 +729,7 @@ def _edge_bevel(setup: _Setup, h: np.ndarray) -> tuple[np.ndarray, np.ndarray, i
     convention, `trace_lens`); a ray that leans outwards and crosses the rest plane
     within ``ring = -h_edge * tan(lean)`` of an edge lying below it meets the surface
     beyond the aperture, where the surface is flat: that light cannot be steered and
-    lands along the screen's edge (measured, a point light 1.5 throws above the lens:
+    lands along the screen's edge (measured, a point light 1.5 screen distances above the lens:
     1.2% of the flux on the edge pixels, relative L2 0.133 where it is 0.097 without
     the screen's 3-pixel border). On each edge whose ring is wider than a tenth of a
     cell, the heights rise linearly to 0 over ``k = ceil(ring / cell) + 1`` cells (the
@@ -734,7 +744,7 @@ def _edge_bevel(setup: _Setup, h: np.ndarray) -> tuple[np.ndarray, np.ndarray, i
     h = h - h.max()
     x0, x1, y0, y1 = setup.aperture
     dx, dy = (x1 - x0) / cols, (y1 - y0) / rows
-    top = setup.throw + setup.thickness
+    top = setup.screen_distance + setup.thickness
     xs = x0 + (np.arange(cols) + 0.5) * dx
     ys = y0 + (np.arange(rows) + 0.5) * dy
     j, i = np.arange(cols), np.arange(rows)
@@ -988,7 +998,7 @@ def _vertical(light: DirectionalLight) -> bool:
     return bool(abs(d[0]) + abs(d[1]) == 0.0)
 
 
-def _flat_lens(light, aperture, thickness: float, throw: float, ior: float):
+def _flat_lens(light, aperture, thickness: float, screen_distance: float, ior: float):
     """The flat lens (a parallel slab) in NumPy: where the aperture's corners land on the
     screen, ``(x_min, x_max, y_min, y_max)``, and the flux through the aperture (the
     density `lens_photons` gives, integrated over a 64 x 64 midpoint grid).
@@ -996,7 +1006,7 @@ def _flat_lens(light, aperture, thickness: float, throw: float, ior: float):
     A ray leaves a parallel slab in its incoming direction, shifted by its refracted
     path through the glass; no compilation is needed for this."""
     x0, x1, y0, y1 = aperture
-    top = throw + thickness
+    top = screen_distance + thickness
     n = 64
     xs = x0 + (np.arange(n) + 0.5) * (x1 - x0) / n
     ys = y0 + (np.arange(n) + 0.5) * (y1 - y0) / n
@@ -1018,8 +1028,8 @@ def _flat_lens(light, aperture, thickness: float, throw: float, ior: float):
     eta = 1.0 / ior
     cos_t = np.sqrt(1.0 - eta**2 * (1.0 - cos_in**2))
     inside = eta * d[..., :2]  # the refracted direction's x, y; its z is -cos_t
-    lx = px + thickness * inside[..., 0] / cos_t + throw * d[..., 0] / cos_in
-    ly = py + thickness * inside[..., 1] / cos_t + throw * d[..., 1] / cos_in
+    lx = px + thickness * inside[..., 0] / cos_t + screen_distance * d[..., 0] / cos_in
+    ly = py + thickness * inside[..., 1] / cos_t + screen_distance * d[..., 1] / cos_in
     corners_x = lx[[0, 0, -1, -1], [0, -1, 0, -1]]
     corners_y = ly[[0, 0, -1, -1], [0, -1, 0, -1]]
     extent = np.array([corners_x.min(), corners_x.max(), corners_y.min(), corners_y.max()])
@@ -1152,13 +1162,30 @@ def _solve_level(fn, solver, u0, args, max_steps: int):
 # --------------------------------------------------------------------------- the API
 
 
+def _renamed_keywords(where: str, screen_distance, throw, throw_errors):
+    """``(screen_distance, throw)`` from the keywords before their rename: ``throw=0.5``
+    was the screen distance (a number, not a bool) and ``throw_errors`` the raising flag
+    now called `throw`, each with a `DeprecationWarning`."""
+    if is_distance(throw):
+        screen_distance = renamed_keyword(where, "throw", "screen_distance", throw, screen_distance)
+        throw = True
+    if throw_errors is not None:
+        throw = renamed_keyword(where, "throw_errors", "throw", throw_errors, None)
+    if screen_distance is None:
+        raise ValueError(
+            f"{where}: `screen_distance` is required (metres from the lens's bottom face to "
+            "the screen)"
+        )
+    return screen_distance, throw
+
+
 def design_lens(
     target,
     *,
     width: float,
     height: float,
     thickness: float,
-    throw: float,
+    screen_distance: float | None = None,
     ior: float = 1.5,
     light: DirectionalLight | PointLight | None = None,
     mask=None,
@@ -1176,7 +1203,8 @@ def design_lens(
     rtol: float = 1e-4,
     predict_photons: int | None = None,
     max_relief: float | None = None,
-    throw_errors: bool = True,
+    throw: bool = True,
+    throw_errors: bool | None = None,
     callback: Callable[[dict], None] | None = None,
     initial=None,
     start: Literal["transport", "poisson"] = "transport",
@@ -1195,7 +1223,7 @@ def design_lens(
       its relative brightness (the design is invariant to scaling it).
     - `width`, `height`: the lens aperture (x and y extents), centred on ``x = y = 0``.
     - `thickness`: the blank's thickness, bottom face to the top surface's highest point.
-    - `throw`: distance from the bottom face to the screen.
+    - `screen_distance`: distance from the bottom face to the screen.
     - `ior`: index of refraction of the glass.
     - `light`: a `DirectionalLight` or a `PointLight`; default: collimated, straight down.
     - `mask`: boolean ``(rows, cols)``: pixels that may receive light; outside it the
@@ -1251,7 +1279,9 @@ def design_lens(
       solution, which folds where the target is dark; 0.5 by default).
     - `predict_photons`: photon grid of the predicted caustic (default 4 per pixel side;
       caustic triangles, their window at most 16 pixels).
-    - `throw_errors`: raise if a level's solver fails (otherwise the result says so).
+    - `throw`: raise if a level's solver fails (otherwise the result says so). Before
+      the rename, ``throw=<metres>`` was `screen_distance` and `throw_errors` this flag:
+      both still work, with a `DeprecationWarning`.
     - `callback`: called after every solver step with a dict (level, shape, step, loss,
       and the number of residuals the loss sums: ``loss / residuals`` is comparable
       between levels; the transport start's loss is already a mean).
@@ -1265,7 +1295,8 @@ def design_lens(
     `warnings.warn` that says so and what to change (also in `LensDesign.warnings`).
     """
     t_start = time.perf_counter()
-    throw_errors = check_bool(throw_errors, "throw_errors")
+    screen_distance, throw = _renamed_keywords("design_lens", screen_distance, throw, throw_errors)
+    throw = check_bool(throw, "throw")
     if callback is not None and not callable(callback):
         raise ValueError(f"`callback` must be callable or None, got {type(callback).__name__}")
     setup = _prepare(
@@ -1273,7 +1304,7 @@ def design_lens(
         width=width,
         height=height,
         thickness=thickness,
-        throw=throw,
+        screen_distance=screen_distance,
         ior=ior,
         light=light,
         mask=mask,
@@ -1312,7 +1343,7 @@ def design_lens(
         u, steps, result, compile_s, seconds = _run_level(
             objective, sol, u, problem, setup.max_steps, history, callback, info
         )
-        h = _level_heights(problem, u, k, shape, result, throw_errors)
+        h = _level_heights(problem, u, k, shape, result, throw)
         loss = history[-1] if history else float("nan")
         level_reports.append(
             {
@@ -1337,7 +1368,7 @@ class _Setup:
     width: float
     height: float
     thickness: float
-    throw: float
+    screen_distance: float
     ior: float
     light: Any
     target_shape: tuple[int, int]
@@ -1425,7 +1456,7 @@ def _prepare(
     width,
     height,
     thickness,
-    throw,
+    screen_distance,
     ior,
     light,
     mask,
@@ -1455,7 +1486,7 @@ def _prepare(
     width = _positive(width, "width")
     height = _positive(height, "height")
     thickness = _positive(thickness, "thickness")
-    throw = _positive(throw, "throw")
+    screen_distance = _positive(screen_distance, "screen_distance")
     if isinstance(ior, (list, tuple)):
         raise ValueError("`ior` must be a single number (design one channel at a time)")
     ior = _positive(ior, "ior")
@@ -1546,10 +1577,10 @@ def _prepare(
         light,
         PlaneReceiver(np.array([-1.0, 1.0, -1.0, 1.0]), t.shape),
         thickness,
-        throw,
+        screen_distance,
         ior=ior,
     )
-    footprint, flat_flux = _flat_lens(light, aperture, thickness, throw, ior)
+    footprint, flat_flux = _flat_lens(light, aperture, thickness, screen_distance, ior)
     screen = footprint if screen_extent is None else given_screen
     receiver = PlaneReceiver(screen, t.shape)
 
@@ -1561,10 +1592,10 @@ def _prepare(
     flux_scale = flat_flux / (goal.sum() * pixel_area)
 
     vertical = isinstance(light, DirectionalLight) and _vertical(light)
-    weak = (ior - 1.0) * (throw + thickness / ior)
+    weak = (ior - 1.0) * (screen_distance + thickness / ior)
     if isinstance(light, PointLight):  # a diverging beam: the screen is magnified
         lz = float(np.asarray(light.position)[2])
-        weak *= (lz) / max(lz - throw - thickness, 1e-12)
+        weak *= (lz) / max(lz - screen_distance - thickness, 1e-12)
 
     # ------------------------------------------------------------ initial guess
     t0 = time.perf_counter()
@@ -1586,7 +1617,7 @@ def _prepare(
         width=width,
         height=height,
         thickness=thickness,
-        throw=throw,
+        screen_distance=screen_distance,
         ior=ior,
         light=light,
         target_shape=tuple(t.shape),
@@ -1626,7 +1657,7 @@ def _lens_scene(setup: _Setup, heights) -> LensScene:
         setup.light,
         setup.receiver,
         setup.thickness,
-        setup.throw,
+        setup.screen_distance,
         ior=setup.ior,
     )
 
@@ -1669,11 +1700,11 @@ def _level_problem(setup: _Setup, k: int, h: np.ndarray | None) -> tuple[jax.Arr
     return u, problem
 
 
-def _level_heights(problem: _Problem, u, k: int, shape, result, throw_errors: bool) -> np.ndarray:
+def _level_heights(problem: _Problem, u, k: int, shape, result, throw: bool) -> np.ndarray:
     """The heights of a solved level (``max = 0``); raises if the solver failed."""
     h = np.asarray(problem.heights(jnp.asarray(u)))
     h = h - h.max()
-    if throw_errors and result not in (
+    if throw and result not in (
         optx.RESULTS.successful,
         optx.RESULTS.max_steps_reached,
     ):
@@ -1778,7 +1809,8 @@ def _design_warnings(setup: _Setup, reports, error: float, dark_flux: float) -> 
         notes.append(
             f"design_lens: the predicted caustic misses the target by {error:.3f} (relative L2, "
             f"above warn_error={setup.warn_error:g}; {100 * dark_flux:.1f}% of the flux on "
-            "dark pixels): try more steps, a longer throw or a thicker blank (more relief), "
+            "dark pixels): try more steps, a longer screen distance or a thicker blank (more "
+            "relief), "
             "or a softer target (blur its edges, fewer isolated points)"
         )
     return notes
@@ -1800,13 +1832,15 @@ class _LevelSolve(eqx.Module):
 def design_lens_variants(
     target,
     *,
-    throws: Sequence[float],
+    screen_distances: Sequence[float] | None = None,
     devices: Sequence[jax.Device] | int | None = None,
     per_device: Literal["map", "vmap"] | None = None,
-    throw_errors: bool = True,
+    throw: bool = True,
+    throws: Sequence[float] | None = None,
+    throw_errors: bool | None = None,
     **design_kwargs,
 ) -> list[LensDesign]:
-    """Design one lens per throw distance of `throws` (the same target, blank and light),
+    """Design one lens per screen distance of `screen_distances` (the same target, blank and light),
     the designs spread over `devices`.
 
     `design_lens` steps its solver from Python (a loss after every step, a callback, a
@@ -1821,16 +1855,18 @@ def design_lens_variants(
     **Arguments:**
 
     - `target`: as for `design_lens`.
-    - `throws`: distances from the bottom face to the screen, metres, one design each.
+    - `screen_distances`: distances from the bottom face to the screen, metres, one design each.
     - `devices`: ``None`` (all of `jax.devices()`), an int ``n`` (the first ``n``) or a
       sequence of devices.
     - `per_device`: ``"map"`` or ``"vmap"``; see `map_sharded`.
-    - `throw_errors`: raise if a variant's solver fails at some level.
+    - `throw`: raise if a variant's solver fails at some level (`throws` and
+      `throw_errors`, the names before the rename, still work with a
+      `DeprecationWarning`).
     - `**design_kwargs`: the keyword arguments of `design_lens` (``width``, ``height``,
-      ``thickness`` required), except ``throw`` and ``callback`` (no per-step calls from
+      ``thickness`` required), except ``screen_distance`` and ``callback`` (no per-step calls from
       inside the sharded loop).
 
-    **Returns:** a list of `LensDesign`, one per throw, in order; each one's
+    **Returns:** a list of `LensDesign`, one per screen distance, in order; each one's
     ``loss_history`` holds its own steps, its ``levels`` report the steps and final loss
     of each level, and their ``seconds`` the wall time of the level's sharded solve (all
     variants together; ``first_step_seconds`` is NaN). Invalid specifications raise
@@ -1838,18 +1874,36 @@ def design_lens_variants(
     """
 
     t_start = time.perf_counter()
-    for name in ("throw", "callback"):
+    where = "design_lens_variants"
+    screen_distances = renamed_keyword(
+        where, "throws", "screen_distances", throws, screen_distances
+    )
+    if throw_errors is not None:
+        throw = renamed_keyword(where, "throw_errors", "throw", throw_errors, None)
+    if screen_distances is None:
+        raise ValueError(f"{where}: `screen_distances` is required (metres, one design each)")
+    for name in ("screen_distance", "callback"):
         if name in design_kwargs:
             raise ValueError(
                 f"`{name}` is not an argument of design_lens_variants"
-                + (" (give `throws`)" if name == "throw" else " (no per-step calls)")
+                + (
+                    " (give `screen_distances`)"
+                    if name == "screen_distance"
+                    else " (no per-step calls)"
+                )
             )
-    if isinstance(throws, (str, bytes)) or not isinstance(throws, (Sequence, np.ndarray)):
-        raise ValueError(f"`throws` must be a sequence of numbers, got {throws!r}")
-    if len(throws) == 0:
-        raise ValueError("`throws` must hold at least one throw distance")
-    throws = [check_number(t, f"throws[{i}]") for i, t in enumerate(throws)]  # > 0: `_prepare`
-    throw_errors = check_bool(throw_errors, "throw_errors")
+    if isinstance(screen_distances, (str, bytes)) or not isinstance(
+        screen_distances, (Sequence, np.ndarray)
+    ):
+        raise ValueError(
+            f"`screen_distances` must be a sequence of numbers, got {screen_distances!r}"
+        )
+    if len(screen_distances) == 0:
+        raise ValueError("`screen_distances` must hold at least one screen distance")
+    screen_distances = [
+        check_number(t, f"screen_distances[{i}]") for i, t in enumerate(screen_distances)
+    ]  # > 0: `_prepare`
+    throw = check_bool(throw, "throw")
     # bad `devices` or `per_device` fail before the set-up
     check_per_device(per_device, resolve_devices(devices))
     unknown = set(design_kwargs) - set(inspect.signature(design_lens).parameters)
@@ -1858,33 +1912,34 @@ def design_lens_variants(
     defaults = {
         k: p.default
         for k, p in inspect.signature(design_lens).parameters.items()
-        if p.default is not inspect.Parameter.empty and k not in ("throw_errors", "callback")
+        if p.default is not inspect.Parameter.empty
+        and k not in ("throw", "throw_errors", "callback", "screen_distance")
     }
     spec = {**defaults, "start": "poisson", **design_kwargs}
     if spec["start"] != "poisson":
         raise ValueError(
             "design_lens_variants runs the Poisson start's levels (start='poisson'); "
-            "design transport-start variants with design_lens, one throw at a time"
+            "design transport-start variants with design_lens, one screen distance at a time"
         )
     for name in ("width", "height", "thickness"):
         if name not in spec:
             raise ValueError(f"`{name}` is required (metres)")
     setups = []
-    for i, throw in enumerate(throws):
+    for i, screen_distance in enumerate(screen_distances):
         try:
-            setups.append(_prepare(target, **{**spec, "throw": throw}))
+            setups.append(_prepare(target, **{**spec, "screen_distance": screen_distance}))
         except ValueError as err:
-            raise ValueError(f"throws[{i}] = {throw}: {err}") from err
+            raise ValueError(f"screen_distances[{i}] = {screen_distance}: {err}") from err
     first = setups[0]
     sol, objective = _make_solver(first.solver, first.cg_steps, first.rtol)
     max_steps = first.max_steps
 
     solve = _LevelSolve(objective, sol, max_steps)
 
-    histories: list[list[float]] = [[] for _ in throws]
-    reports: list[list[dict[str, Any]]] = [[] for _ in throws]
+    histories: list[list[float]] = [[] for _ in screen_distances]
+    reports: list[list[dict[str, Any]]] = [[] for _ in screen_distances]
     results = [optx.RESULTS.successful] * len(throws)
-    heights: list[np.ndarray | None] = [None] * len(throws)
+    heights: list[np.ndarray | None] = [None] * len(screen_distances)
     for k, shape in enumerate(first.shapes):
         t0 = time.perf_counter()
         items = [_level_problem(setup, k, h) for setup, h in zip(setups, heights, strict=True)]
@@ -1898,9 +1953,9 @@ def design_lens_variants(
             results[i] = jax.tree.map(lambda x, i=i: jnp.asarray(x[i]), result)
             histories[i].extend(float(v) for v in losses[i, :n_steps])
             try:
-                heights[i] = _level_heights(problem, u[i], k, shape, results[i], throw_errors)
+                heights[i] = _level_heights(problem, u[i], k, shape, results[i], throw)
             except RuntimeError as err:
-                raise RuntimeError(f"throws[{i}] = {throws[i]}: {err}") from err
+                raise RuntimeError(f"screen_distances[{i}] = {screen_distances[i]}: {err}") from err
             reports[i].append(
                 {
                     "shape": shape,

@@ -4,7 +4,7 @@ The exported solid (`lens_solid`: the height-field top as the renderer sees it, 
 bottom, side walls) is placed in a `MeshScene` and traced by
 `jaxcaustics.reference.trace_mesh`, which shares no code with the caustic-triangles
 forward model the design was optimised with. The same is done with the screen moved
-by plus and minus a few percent of the throw, and under the Sun (a disc of 0.53 degrees
+by plus and minus a few percent of the screen_distance, and under the Sun (a disc of 0.53 degrees
 instead of a point at infinity), so a user sees how robust the design is.
 """
 
@@ -63,7 +63,7 @@ def solid_scene(scene: LensScene, *, samples=None) -> MeshScene:
 
     solid = lens_solid(scene, samples=samples)  # millimetres, origin at the corner
     x0, _, y0, _ = (float(v) for v in np.asarray(scene.surface.extent))
-    vertices = np.asarray(solid.vertices) / 1000.0 + [x0, y0, float(scene.throw)]
+    vertices = np.asarray(solid.vertices) / 1000.0 + [x0, y0, float(scene.screen_distance)]
     return MeshScene(
         Mesh(vertices, np.asarray(solid.faces)),
         scene.light,
@@ -100,7 +100,7 @@ class Verification:
 
     - `nominal`: the exported solid, as specified.
     - `screen_near`, `screen_far`: the screen moved towards / away from the lens by
-      `screen_shift` of the throw.
+      `screen_shift` of the screen distance.
     - `sun`: lit by a disc of the Sun's angular size (0.53 degrees) instead of a point.
     - `image`: the nominal reference image.
     """
@@ -142,7 +142,7 @@ def verify_lens(
     - `mask`: optional boolean ``(rows, cols)``: pixels the error is measured on.
     - `photons_per_axis`: the reference's photon grid per axis (accuracy knob), at most
       `MAX_PHOTONS_PER_AXIS`.
-    - `screen_shift`: relative change of the throw for the screen tests (0.05: 5%).
+    - `screen_shift`: relative change of the screen distance for the screen tests (0.05: 5%).
     - `sun_samples`: directions over the Sun's disc (each traced with
       ``photons_per_axis / sqrt(sun_samples)`` photons per axis), at most
       `MAX_SUN_SAMPLES`.
@@ -169,13 +169,13 @@ def verify_lens(
     nominal = reference.trace_mesh(nominal_scene, photons_per_axis)
 
     def moved(factor: float) -> float:
-        throw = float(scene.throw) * factor
+        screen_distance = float(scene.screen_distance) * factor
         lens = LensScene(
             scene.surface,
             scene.light,
             scene.receiver,
             scene.thickness,
-            throw,
+            screen_distance,
             ior=scene.ior,
             fresnel=scene.fresnel,
         )

@@ -86,12 +86,12 @@ Conventions of the lens and mesh scenes
 - One image channel per index of refraction: a scalar ``scene.ior`` gives
   ``(rows, cols)``, a sequence ``(rows, cols, C)`` (a mirror: always ``(rows, cols)``).
 
-Lens (`LensScene`): top surface ``z = throw + thickness + H(x, y)`` (``H`` as above,
-rotation included), flat bottom face ``z = throw`` (an infinite plane, no side walls),
+Lens (`LensScene`): top surface ``z = screen_distance + thickness + H(x, y)`` (``H`` as above,
+rotation included), flat bottom face ``z = screen_distance`` (an infinite plane, no side walls),
 glass of index ``n``.
 
 - The aperture: a photon belongs to the lens iff its line crosses the top rest plane
-  ``z = throw + thickness`` inside ``surface.extent`` (half-open: ``x_min <= x < x_max``,
+  ``z = screen_distance + thickness`` inside ``surface.extent`` (half-open: ``x_min <= x < x_max``,
   ``y_min <= y < y_max``, in the field's own frame for a rotated field). Photons start
   there: a grid of equal cells over the extent (in the field's frame), each carrying its
   cell's area times the flux density (1 for a directional light, ``I |w_z| / r^2`` for a
@@ -99,7 +99,7 @@ glass of index ``n``.
 - The hit with the top surface is the first root along the whole line (``t`` may be
   negative), by the same safe march and Newton as for water (per-ray directions for a
   point light). Refract air -> glass (``eta = 1 / n``, upward normal; total internal
-  reflection, only for ``n < 1``, loses the photon), go straight to ``z = throw`` (the
+  reflection, only for ``n < 1``, loses the photon), go straight to ``z = screen_distance`` (the
   top surface is not met again; a ray that does not go down, or a hit at or below the
   bottom face, loses the photon), refract glass -> air (normal ``(0, 0, 1)``,
   ``eta = n``; total internal reflection loses the photon), land on ``z = 0``.

@@ -1,7 +1,7 @@
 """Photon tracing through a caustic lens (`LensScene`), plain NumPy, float64.
 
-The lens: top surface ``z = throw + thickness + H(x, y)`` (the bicubic of `_surface.py`,
-rotation included), flat bottom face ``z = throw`` (an infinite plane), screen ``z = 0``.
+The lens: top surface ``z = screen_distance + thickness + H(x, y)`` (the bicubic of `_surface.py`,
+rotation included), flat bottom face ``z = screen_distance`` (an infinite plane), screen ``z = 0``.
 A photon belongs to the lens iff its line crosses the top rest plane inside the
 (rotated) extent, half-open. It hits the top surface at the first root along its whole
 line (`intersect_surface`; `_intersect_rays` for a point light's per-photon
@@ -217,14 +217,14 @@ class _Lens:
     light: _Light
     receiver: _Receiver
     thickness: float
-    throw: float
+    screen_distance: float
     iors: tuple[float, ...]
     multichannel: bool
     fresnel: bool
 
     @property
     def top(self) -> float:
-        return self.throw + self.thickness
+        return self.screen_distance + self.thickness
 
 
 def _positive(value, name: str) -> float:
@@ -238,7 +238,12 @@ def _read_lens(scene) -> _Lens:
     try:
         surface, light, receiver = scene.surface, scene.light, scene.receiver
         heights, extent, boundary = surface.heights, surface.extent, surface.boundary
-        thickness, throw, ior, fresnel = scene.thickness, scene.throw, scene.ior, scene.fresnel
+        thickness, screen_distance, ior, fresnel = (
+            scene.thickness,
+            scene.screen_distance,
+            scene.ior,
+            scene.fresnel,
+        )
     except AttributeError as err:
         raise ValueError(f"`scene` must be a LensScene-like object: {err}") from err
     surf = _Surface.build(heights, extent, boundary, getattr(surface, "rotation", 0.0))
@@ -247,7 +252,7 @@ def _read_lens(scene) -> _Lens:
         _Light.read(light),
         _Receiver.read(receiver),
         _positive(thickness, "thickness"),
-        _positive(throw, "throw"),
+        _positive(screen_distance, "screen_distance"),
         *_read_iors(ior),
         bool(fresnel),
     )
@@ -384,7 +389,7 @@ def _trace_lens(
     n, c = xs.shape[0], len(lens.iors)
     gx, gy, weight = np.zeros((c, n)), np.zeros((c, n)), np.zeros((c, n))
     status = np.full((c, n), OUTSIDE, dtype=np.int8)
-    surf, light, top, throw = lens.surface, lens.light, lens.top, lens.throw
+    surf, light, top, screen_distance = lens.surface, lens.light, lens.top, lens.screen_distance
     up = np.array([[0.0], [0.0], [1.0]])
     for lo in range(0, n, _CHUNK):
         sel = lo + np.flatnonzero(_in_aperture(surf, xs[lo : lo + _CHUNK], ys[lo : lo + _CHUNK]))
@@ -408,13 +413,13 @@ def _trace_lens(
         normal = np.stack([-hx, -hy, np.ones_like(hx)]) / np.sqrt(1.0 + hx * hx + hy * hy)
         for k, ior in enumerate(lens.iors):
             d1, tr1, tir1 = _refract_rays(w, normal, 1.0 / ior, lens.fresnel)
-            down = ~tir1 & (d1[2] < 0.0) & (p[2] > throw)
+            down = ~tir1 & (d1[2] < 0.0) & (p[2] > screen_distance)
             with np.errstate(divide="ignore", invalid="ignore"):
-                bottom = p + np.where(down, (throw - p[2]) / d1[2], 0.0) * d1
+                bottom = p + np.where(down, (screen_distance - p[2]) / d1[2], 0.0) * d1
             d2, tr2, tir2 = _refract_rays(d1, up, ior, lens.fresnel)
             ok = down & ~tir2
             with np.errstate(divide="ignore", invalid="ignore"):
-                s = np.where(ok, -throw / d2[2], 0.0)
+                s = np.where(ok, -screen_distance / d2[2], 0.0)
             gx[k, sel] = np.where(ok, bottom[0] + s * d2[0], 0.0)
             gy[k, sel] = np.where(ok, bottom[1] + s * d2[1], 0.0)
             weight[k, sel] = np.where(ok, density * tr1 * tr2, 0.0)
@@ -430,10 +435,10 @@ def trace_lens_photons(scene, xs, ys) -> tuple[np.ndarray, np.ndarray, np.ndarra
     """Trace photons through a `LensScene` from points of the top rest plane.
 
     Photon ``k`` travels along the line of the light (a directional light's direction, or
-    from a point light's position) through ``(xs[k], ys[k], throw + thickness)``; it
+    from a point light's position) through ``(xs[k], ys[k], screen_distance + thickness)``; it
     belongs to the lens iff that point lies in the aperture (``surface.extent``, rotated
     with the field). It hits the top surface at the first root along the whole line,
-    refracts into the glass, goes to the bottom face ``z = throw``, refracts out (total
+    refracts into the glass, goes to the bottom face ``z = screen_distance``, refracts out (total
     internal reflection loses it) and lands on ``z = 0``.
 
     Parameters
@@ -441,7 +446,7 @@ def trace_lens_photons(scene, xs, ys) -> tuple[np.ndarray, np.ndarray, np.ndarra
     scene : LensScene
         Read by duck typing (see the module docstring).
     xs, ys : array_like, shape (N,)
-        Points of the rest plane ``z = throw + thickness``, metres.
+        Points of the rest plane ``z = screen_distance + thickness``, metres.
 
     Returns
     -------

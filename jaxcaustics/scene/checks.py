@@ -14,7 +14,7 @@ the scene a method is given:
   ``EQX_ON_ERROR=nan``, Equinox's switch), never a black image.
 
 Rules: every floating field finite; a directional light travelling down; a point light of
-positive intensity; extents with ``max > min``; water depth, lens thickness and throw
+positive intensity; extents with ``max > min``; water depth, lens thickness and screen distance
 positive, the surface above what lies beneath it, a point light above a lens; meshes and
 ellipsoids above the screen, a point light outside the generator's bounding box, a
 refracting mesh wound outwards (positive signed volume), ellipsoid radii positive.
@@ -100,7 +100,11 @@ def _lens_rules(scene: LensScene, xp) -> list[Rule]:
     h = scene.surface.heights
     rules = [
         (lambda s: s.thickness, scene.thickness <= 0, "`scene.thickness` must be positive"),
-        (lambda s: s.throw, scene.throw <= 0, "`scene.throw` must be positive"),
+        (
+            lambda s: s.screen_distance,
+            scene.screen_distance <= 0,
+            "`scene.screen_distance` must be positive",
+        ),
         (
             lambda s: s.surface.heights,
             scene.thickness + xp.min(h) <= 0,
@@ -109,7 +113,7 @@ def _lens_rules(scene: LensScene, xp) -> list[Rule]:
         ),
     ]
     if isinstance(scene.light, PointLight):
-        top = scene.throw + scene.thickness + xp.max(h)
+        top = scene.screen_distance + scene.thickness + xp.max(h)
         message = "`scene.light` must be above the lens (position z > top of the lens)"
         rules.append((lambda s: s.light.position, scene.light.position[2] <= top, message))
     return rules

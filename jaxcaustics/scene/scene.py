@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import warnings
 from collections.abc import Sequence
 from typing import Any
 
@@ -29,7 +30,14 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
-from .._checks import check_bool, check_choice, check_number, check_real_array, check_shape
+from .._checks import (
+    check_bool,
+    check_choice,
+    check_number,
+    check_real_array,
+    check_shape,
+    renamed_keyword,
+)
 
 BOUNDARY_MODES = ("periodic", "clamp", "extrapolate")
 
@@ -396,7 +404,8 @@ class LensScene(eqx.Module):
     caustic lens design.
 
     The receiver (screen) is the plane ``z = 0``; the slab's flat bottom face is the plane
-    ``z = throw``; its top surface is ``z = throw + thickness + surface.heights(x, y)``.
+    ``z = screen_distance``; its top surface is ``z = screen_distance + thickness +
+    surface.heights(x, y)``.
     Light enters through the top surface within ``surface.extent`` (the aperture: light
     outside it is stopped by the lens holder), refracts into the glass, leaves through the
     bottom face (refracting again, or lost by total internal reflection) and lands on the
@@ -411,11 +420,12 @@ class LensScene(eqx.Module):
     - `receiver`: a `PlaneReceiver` (the screen's pixel grid on ``z = 0``).
     - `thickness`: metres from the bottom face to the top surface's rest plane (> 0); the
       top surface must stay above the bottom face (``thickness + min(heights) > 0``).
-    - `throw`: metres from the bottom face to the screen (> 0).
+    - `screen_distance`: metres from the bottom face to the screen (> 0; default 0.5).
     - `ior`: index of refraction of the glass (static); a sequence gives one image
       channel per index (dispersion), like `WaterScene`.
     - `fresnel`: multiply each photon by the exact unpolarised transmittances of both
       faces.
+    - `throw`: the old name of `screen_distance` (a `DeprecationWarning`).
 
     Images are irradiance relative to the irradiance the light gives a horizontal plane
     (directional light), or in W/m^2 for a point light of the given intensity.
@@ -425,7 +435,7 @@ class LensScene(eqx.Module):
     light: DirectionalLight | PointLight
     receiver: PlaneReceiver
     thickness: Float[Array, ""]
-    throw: Float[Array, ""]
+    screen_distance: Float[Array, ""]
     ior: float | tuple[float, ...] = eqx.field(static=True)
     fresnel: bool = eqx.field(static=True)
 
@@ -435,26 +445,31 @@ class LensScene(eqx.Module):
         light: DirectionalLight | PointLight,
         receiver: PlaneReceiver,
         thickness=0.01,
-        throw=0.5,
+        screen_distance=None,
         *,
         ior: float | Sequence[float] = 1.5,
         fresnel: bool = False,
+        throw=None,
     ):
         if not isinstance(surface, HeightField):
             raise ValueError(f"`surface` must be a HeightField, got {type(surface).__name__}")
         _check_light(light)
         if not isinstance(receiver, PlaneReceiver):
             raise ValueError(f"`receiver` must be a PlaneReceiver, got {type(receiver).__name__}")
+        screen_distance = renamed_keyword(
+            "LensScene", "throw", "screen_distance", throw, screen_distance
+        )
+        screen_distance = 0.5 if screen_distance is None else screen_distance
         self.surface = surface
         self.light = light
         self.receiver = receiver
         self.thickness = _check_positive_scalar(thickness, "thickness")
-        self.throw = _check_positive_scalar(throw, "throw")
+        self.screen_distance = _check_positive_scalar(screen_distance, "screen_distance")
         self.ior = _check_ior(ior)
         self.fresnel = check_bool(fresnel, "fresnel")
         _check_surface_above(surface, self.thickness, "thickness", "dips through the bottom face")
         if isinstance(light, PointLight) and _is_concrete(light.position):
-            top = float(self.throw) + float(self.thickness)
+            top = float(self.screen_distance) + float(self.thickness)
             if _is_concrete(surface.heights):
                 top += float(np.max(np.asarray(surface.heights)))
             if not float(light.position[2]) > top:
@@ -471,7 +486,16 @@ class LensScene(eqx.Module):
     @property
     def top(self) -> Array:
         """Height of the top surface's rest plane above the screen, metres."""
-        return self.throw + self.thickness
+        return self.screen_distance + self.thickness
+
+    @property
+    def throw(self) -> Array:
+        """Deprecated name of `screen_distance` (in jaxcaustics, as in Optimistix, `throw`
+        means raising on failure)."""
+        warnings.warn(
+            "LensScene.throw is deprecated: read `screen_distance`", DeprecationWarning, 2
+        )
+        return self.screen_distance
 
     @property
     def effects(self) -> Effects:

@@ -164,12 +164,12 @@ def lens_photons(
     positions, directions, densities, valids = [], [], [], []
     for ior in scene.iors:
         inside, _, cos_in = refract_components(d, normal, 1.0 / ior)
-        valid = (inside[2] < 0.0) & (hit_z > scene.throw)
-        s = (hit_z - scene.throw) / -jnp.where(valid, inside[2], -1.0)
+        valid = (inside[2] < 0.0) & (hit_z > scene.screen_distance)
+        s = (hit_z - scene.screen_distance) / -jnp.where(valid, inside[2], -1.0)
         bottom = (
             hit_x + s * inside[0],
             hit_y + s * inside[1],
-            jnp.broadcast_to(scene.throw, s.shape),
+            jnp.broadcast_to(scene.screen_distance, s.shape),
         )
         out, tir, cos_out = refract_components(inside, up, ior)
         landed, valid = _land(bottom, out, valid & ~tir)

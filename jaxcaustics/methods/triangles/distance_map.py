@@ -124,20 +124,6 @@ def face_coordinates(
     return (u + 1.0) * half, (v + 1.0) * half, depth
 
 
-def direction_to_texel(
-    directions: Float[Array, "... 3"], resolution: int
-) -> tuple[Int[Array, "..."], Float[Array, "..."], Float[Array, "..."]]:
-    """Face and pixel coordinates of directions on an ``R x R`` cube map.
-
-    **Returns:** ``(face, x, y)``: the face (`direction_face`) and the pixel coordinates
-    on it, in ``[0, R]`` (texel ``(i, j)`` = ``(floor(y), floor(x))``, clipped to
-    ``R - 1`` on the far edges).
-    """
-    face = direction_face(directions)
-    x, y, _ = face_coordinates(directions, face, resolution)
-    return face, x, y
-
-
 def texel_directions(resolution: int, *, normalize: bool = True, dtype=None) -> Array:
     """Directions through the texel centres, shape ``(6, R, R, 3)`` indexed
     ``[face, row, column]``; unit vectors, or (``normalize=False``) ``N + u U + v V``
@@ -833,22 +819,6 @@ def tracing_error_table(
     out["linear_steps"] = np.asarray(linear_steps)
     out["secant_iterations"] = np.asarray(secant_iterations)
     return out
-
-
-def format_tracing_table(table: dict[str, np.ndarray]) -> str:
-    """`tracing_error_table` as plain text: one row per (steps, iterations)."""
-    lines = [
-        f"{'steps':>5} {'secant':>6} {'median m':>10} {'p95 m':>10} {'max m':>10}"
-        f" {'missed':>7} {'false':>7}"
-    ]
-    for i, n in enumerate(table["linear_steps"]):
-        for j, it in enumerate(table["secant_iterations"]):
-            lines.append(
-                f"{n:>5d} {it:>6d} {table['median'][i, j]:>10.2e} {table['p95'][i, j]:>10.2e}"
-                f" {table['max'][i, j]:>10.2e} {table['missed'][i, j]:>7.4f}"
-                f" {table['false'][i, j]:>7.4f}"
-            )
-    return "\n".join(lines)
 
 
 # --------------------------------------------------------------------------------------
