@@ -7,7 +7,7 @@ of `jax.devices()`, which after `jax.distributed.initialize` spans every host), 
 
 - `map_sharded`: a function over the items of a batch (CSL fits per light direction, the
   lens design's solves per variant), results gathered to NumPy on every process.
-- `stack_scenes`: a batch of scenes, rendered by `render_batch` (`_render_batch`: it
+- `stack_scenes`: a batch of scenes, rendered by `render_batch` (`methods/batch.py`: it
   needs the methods, which use this module's meshes, so it lives above both).
 - `gather_to_host`: NumPy copies of (possibly multi-host) arrays on every process.
 

@@ -338,7 +338,7 @@ def test_gradient_matches_central_differences():
     grid follows the centre and the largest radius; no ray crosses the silhouette within
     a step (checked). Rays in the grid's corners miss the ellipsoid: their gradients must
     stay finite (no NaN). Fresnel is off here to keep the compilation short (its factor
-    is plain `_optics.fresnel_transmittance`)."""
+    is plain `trace.optics.fresnel_transmittance`)."""
     rot = jnp.asarray(_rotation())
 
     def functional(params):

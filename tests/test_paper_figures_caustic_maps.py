@@ -80,7 +80,7 @@ def test_table1_adaptive_quick(tmp_path, capsys):
 
 def test_scenes_lie_above_the_receiver():
     module = _load()
-    # both generators are closed and lie above the receiver (checked in `_scene`)
+    # both generators are closed and lie above the receiver (checked in `scene/scene.py`)
     for name in module.SCENES:
         scene = module.make_scene(name, module.QUICK)
         assert float(np.asarray(scene.generator.vertices)[:, 2].min()) > 0.0

@@ -23,7 +23,7 @@ import numpy as np
 
 from .. import reference
 from ..inverse.checkpoint import run_rounds
-from ..inverse.design import _resample, default_levels, design_lens, transport_shape
+from ..inverse.design import default_levels, design_lens, resample_corners, transport_shape
 from ..inverse.export import export_lens
 from ..inverse.sequence import frame_paths, load_frames, recover_sequence
 from ..inverse.solvers import SOLVER_NAMES
@@ -51,7 +51,7 @@ def length(text: str) -> float:
     return value
 
 
-def _count(minimum: int, maximum: int | None = None) -> Callable[[str], int]:
+def int_at_least(minimum: int, maximum: int | None = None) -> Callable[[str], int]:
     """An argparse type: an integer of at least `minimum` (and at most `maximum`)."""
 
     def parse(text: str) -> int:
@@ -209,7 +209,7 @@ def add_design(subparsers) -> None:
     )
     design.add_argument(
         "--size",
-        type=_count(2, MAX_SIDE),
+        type=int_at_least(2, MAX_SIDE),
         default=128,
         help=f"target columns (default 128, at most {MAX_SIDE})",
     )
@@ -219,7 +219,9 @@ def add_design(subparsers) -> None:
         help="height-grid sizes, coarse to fine (default: 32, 64, ... up to twice --size; "
         f"at most {MAX_SIDE})",
     )
-    design.add_argument("--steps", type=_count(1), default=40, help="solver steps per level (40)")
+    design.add_argument(
+        "--steps", type=int_at_least(1), default=40, help="solver steps per level (40)"
+    )
     design.add_argument(
         "--start",
         default="transport",
@@ -346,7 +348,9 @@ def run_design(args: argparse.Namespace) -> int:
                 **spec,
             )
             designs[k] = design
-            fine = _resample(np.asarray(design.heights), final_shape, design.scene.surface.boundary)
+            fine = resample_corners(
+                np.asarray(design.heights), final_shape, design.scene.surface.boundary
+            )
             return {"heights": jnp.asarray(fine), "loss": jnp.asarray(design.loss_history[-1])}
 
         return run
@@ -482,7 +486,7 @@ def add_recover(subparsers) -> None:
     )
     recover.add_argument(
         "--heights",
-        type=_count(2, MAX_SIDE),
+        type=int_at_least(2, MAX_SIDE),
         default=None,
         help=f"height samples per axis (the target's; the built-in sea: 64, at most "
         f"{MAX_BUILT_IN})",
@@ -496,7 +500,9 @@ def add_recover(subparsers) -> None:
     recover.add_argument(
         "--levels", default="1", help="coarse-to-fine factors of the --solver, e.g. 4,2,1"
     )
-    recover.add_argument("--steps", type=_count(1), default=50, help="solver steps per level (50)")
+    recover.add_argument(
+        "--steps", type=int_at_least(1), default=50, help="solver steps per level (50)"
+    )
     recover.add_argument("--output", type=Path, default=Path("recover"), help="output folder")
     recover.add_argument("--resume", action="store_true", help="continue from the checkpoint")
     recover.set_defaults(func=with_flags(run_recover, _RECOVER_FLAGS))

@@ -28,9 +28,9 @@ from jaxcaustics.methods.twopass import MAX_AUTO_HALF_WINDOW
 
 from .design import (
     MAX_PIXELS,
-    _count,
     add_design,
     add_recover,
+    int_at_least,
     number,
     output_folder,
     with_flags,
@@ -180,7 +180,10 @@ def _add_render(subparsers) -> None:
         help="RMS wave height, metres (default: %(default)s)",
     )
     g.add_argument(
-        "--seed", type=_count(0), default=0, help="seed of the wave set (default: %(default)s)"
+        "--seed",
+        type=int_at_least(0),
+        default=0,
+        help="seed of the wave set (default: %(default)s)",
     )
 
     g = water.add_argument_group("light and optics")
@@ -234,7 +237,7 @@ def _add_render(subparsers) -> None:
     )
     g.add_argument(
         "--hit-iterations",
-        type=_count(0, MAX_HIT_ITERATIONS),
+        type=int_at_least(0, MAX_HIT_ITERATIONS),
         default=3,
         metavar="K",
         help="Newton steps to find where each light ray meets the moving surface "
@@ -242,7 +245,7 @@ def _add_render(subparsers) -> None:
     )
     g.add_argument(
         "--supersample",
-        type=_count(1, MAX_SUPERSAMPLE),
+        type=int_at_least(1, MAX_SUPERSAMPLE),
         default=4,
         metavar="S",
         help="S x S samples per caustic-map pixel; 1 is the paper's method (fastest, with a "
@@ -253,7 +256,7 @@ def _add_render(subparsers) -> None:
     g = water.add_argument_group("animation and output")
     g.add_argument(
         "--frames",
-        type=_count(1, MAX_FRAMES),
+        type=int_at_least(1, MAX_FRAMES),
         default=1,
         metavar="K",
         help="number of frames (default: %(default)s)",

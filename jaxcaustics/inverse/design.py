@@ -90,17 +90,17 @@ from ..methods.triangles.method import (
 )
 from ..scene.scene import DirectionalLight, HeightField, LensScene, PlaneReceiver, PointLight
 from ..scene.surface import (
-    _PAD_LOW,
-    _catmull_rom,
-    _padded,
+    PAD_LOW,
+    catmull_rom,
+    pad_heights,
     ray_surface_hit,
     sample_grid,
 )
 from ..scene.surface import bilinear as _bilinear
 from ..trace.optics import refract_components
-from ..trace.photons import _grid
+from ..trace.photons import corner_grid
 from .recover import MAX_CG_STEPS, check_irradiance, resample_heights
-from .recover import _laplacian as _five_point
+from .recover import weighted_laplacian as _five_point
 from .solvers import SolverLike, check_solver, half_squares, is_minimiser, make_solver
 from .transport import MAX_ITERATIONS, MAX_PIXELS, transport_map
 from .transport import neumann_poisson as _neumann_poisson
@@ -195,7 +195,7 @@ def _check_target(target) -> np.ndarray:
     return check_irradiance(t, "there is nothing to design for")
 
 
-def _check_mask(mask, shape) -> np.ndarray:
+def check_mask(mask, shape) -> np.ndarray:
     if mask is None:
         return np.ones(shape, bool)
     m = np.asarray(mask)
@@ -262,7 +262,7 @@ class _Problem(eqx.Module):
         scene = self.scene
         surface = eqx.tree_at(lambda s: s.heights, scene.surface, h)
         x0, x1, y0, y1 = surface.extent
-        px, py, cell_area = _grid(x0, x1, y0, y1, self.grid, h.dtype)
+        px, py, cell_area = corner_grid(x0, x1, y0, y1, self.grid, h.dtype)
         top = scene.top
         if isinstance(scene.light, DirectionalLight):
             d = tuple(c.astype(h.dtype) for c in scene.light.unit_direction)
@@ -309,7 +309,7 @@ class _Problem(eqx.Module):
         h = h - jax.lax.stop_gradient(jnp.max(h))
         scene = self.scene
         x0, x1, y0, y1 = scene.surface.extent
-        px, py, _ = _grid(x0, x1, y0, y1, self.grid, h.dtype)
+        px, py, _ = corner_grid(x0, x1, y0, y1, self.grid, h.dtype)
         wy, dwy, wx, dwx = sampling
         height = wy @ h @ wx.T
         hx, hy = wy @ h @ dwx.T, dwy @ h @ wx.T
@@ -371,13 +371,13 @@ def _catmull_rom_matrix(n: int, lo: float, hi: float, points: np.ndarray, bounda
     u = np.clip((points - lo) / step - 0.5, -2.0, n + 1.0)
     base = np.floor(u)
     t = u - base
-    w, dw, _ = _catmull_rom(t)  # the library's own Catmull-Rom weights
+    w, dw, _ = catmull_rom(t)  # the library's own Catmull-Rom weights
     # row p of `taps`: padded sample p - _PAD as a combination of the samples
-    taps = np.asarray(_padded(jnp.eye(n), boundary, axes=(0,)))
+    taps = np.asarray(pad_heights(jnp.eye(n), boundary, axes=(0,)))
     weights = np.zeros((points.size, n))
     deriv = np.zeros((points.size, n))
     for k in range(4):
-        rows = taps[base.astype(int) - 1 + k + _PAD_LOW]
+        rows = taps[base.astype(int) - 1 + k + PAD_LOW]
         weights += np.asarray(w[k])[:, None] * rows
         deriv += np.asarray(dw[k])[:, None] * rows / step
     return weights, deriv
@@ -887,7 +887,9 @@ def _design_by_transport(setup: _Setup, history: list, callback):
     atol = 0.01 * min(dx / gain[0], dy / gain[1])
     solver = optx.FixedPointIteration(rtol=0.0, atol=atol)
     if setup.initial is not None:
-        h0 = jnp.asarray(_resample(np.asarray(setup.initial, float), shape, setup.boundary), dtype)
+        h0 = jnp.asarray(
+            resample_corners(np.asarray(setup.initial, float), shape, setup.boundary), dtype
+        )
     else:
         h0 = jnp.zeros(shape, dtype)
     info = {"level": 0, "shape": shape}
@@ -1044,7 +1046,7 @@ def _laplacian(h: jax.Array, dx: float, dy: float) -> jax.Array:
     return _five_point(h, "clamp", 1.0 / dx**2, 1.0 / dy**2)
 
 
-def _resample(h: np.ndarray, shape: tuple[int, int], boundary: str) -> np.ndarray:
+def resample_corners(h: np.ndarray, shape: tuple[int, int], boundary: str) -> np.ndarray:
     """The bicubic surface of `h` (with `boundary`) at the sample centres of a `shape`
     grid."""
     return np.asarray(_resample_jit(h, (0.0, 1.0, 0.0, 1.0), tuple(shape), boundary))
@@ -1493,7 +1495,7 @@ def _prepare(
     if ior <= 1.0:
         raise ValueError(f"`ior` must be > 1 for a glass lens in air, got {ior}")
     t = _check_target(target)
-    m = _check_mask(mask, t.shape)
+    m = check_mask(mask, t.shape)
     if not np.any(t[m] > 0):
         raise ValueError("`target` is zero everywhere inside `mask`: there is no light to place")
     solver = check_solver(solver)
@@ -1671,7 +1673,7 @@ def _level_problem(setup: _Setup, k: int, h: np.ndarray | None) -> tuple[jax.Arr
     dtype = jnp.result_type(float)
     weak = setup.weak
     if k == 0 and setup.initial is not None:  # continue from given heights
-        h_start = _resample(np.asarray(setup.initial, float), shape, setup.boundary)
+        h_start = resample_corners(np.asarray(setup.initial, float), shape, setup.boundary)
         u = _laplacian(jnp.asarray(h_start), dx, dy) * weak
     elif k == 0 and setup.start == "transport":
         u = jnp.zeros(shape, dtype)  # unused: the landing fit works on the heights
@@ -1679,7 +1681,7 @@ def _level_problem(setup: _Setup, k: int, h: np.ndarray | None) -> tuple[jax.Arr
         u = jnp.asarray(-setup.start_scale * np.log(setup.goal0), dtype)
     else:
         # carry the heights to the finer grid, then back to the preconditioned variable
-        h_fine = _resample(h, shape, setup.boundary)
+        h_fine = resample_corners(h, shape, setup.boundary)
         u = _laplacian(jnp.asarray(h_fine), dx, dy) * weak
     scene = _lens_scene(setup, np.zeros(shape))
     level_goal = jnp.asarray(_level_target(setup.goal, shape), dtype)

@@ -72,9 +72,9 @@ from ..scene.scene import (
     HeightField,
     PlaneReceiver,
     WaterScene,
-    _check_extent,
-    _check_ior,
-    _check_positive_scalar,
+    check_extent,
+    check_ior,
+    check_positive_scalar,
 )
 from ..scene.surface import height_and_gradient
 from .camera import camera_blur, deconvolve
@@ -203,7 +203,7 @@ class RecoveryResult:
 MAX_CG_STEPS = 10_000
 
 
-def _laplacian(u: Array, boundary: str, wx: Array, wy: Array) -> Array:
+def weighted_laplacian(u: Array, boundary: str, wx: Array, wy: Array) -> Array:
     if boundary == "periodic":
         east, west = jnp.roll(u, -1, 1), jnp.roll(u, 1, 1)
         north, south = jnp.roll(u, -1, 0), jnp.roll(u, 1, 0)
@@ -251,7 +251,7 @@ class _Problem(eqx.Module):
         del args
         image = camera_blur(self.render(u).image, self.blur, self.boundary)
         misfit = (image - self.target) / math.sqrt(self.target.size)
-        lap = _laplacian(u, self.boundary, self.lap_x, self.lap_y)
+        lap = weighted_laplacian(u, self.boundary, self.lap_x, self.lap_y)
         smooth = self.smooth * lap / math.sqrt(u.size)
         return misfit, smooth, jnp.mean(u)[None]
 
@@ -288,7 +288,7 @@ def resample_heights(heights, extent, shape: tuple[int, int], boundary: str = "p
 # ------------------------------------------------------------------ validation
 
 
-def _load_target(target, ior) -> np.ndarray:
+def load_target(target, ior) -> np.ndarray:
     channels = len(ior) if isinstance(ior, tuple) else 0
     if isinstance(target, (str, os.PathLike)):
         try:
@@ -466,18 +466,18 @@ def recover_surface(
     converge.
     """
     # ---- validate everything before compiling anything
-    ior = _check_ior(ior)
+    ior = check_ior(ior)
     iors = ior if isinstance(ior, tuple) else (ior,)
     if any(abs(1.0 - 1.0 / n) < 1e-6 for n in iors):
         raise ValueError(f"`ior` must differ from 1 (no refraction, no caustic), got {ior!r}")
-    target_arr = _load_target(target, ior)
-    ext = np.asarray(_check_extent(extent, "extent"), dtype=float)
+    target_arr = load_target(target, ior)
+    ext = np.asarray(check_extent(extent, "extent"), dtype=float)
     rec_ext = (
         ext
         if receiver_extent is None
-        else np.asarray(_check_extent(receiver_extent, "receiver_extent"), dtype=float)
+        else np.asarray(check_extent(receiver_extent, "receiver_extent"), dtype=float)
     )
-    depth = float(_check_positive_scalar(rest_depth, "rest_depth"))
+    depth = float(check_positive_scalar(rest_depth, "rest_depth"))
     if not isinstance(light, DirectionalLight):
         raise ValueError(f"`light` must be a DirectionalLight, got {type(light).__name__}")
     shape = target_arr.shape[:2]

@@ -31,11 +31,11 @@ import jax.numpy as jnp
 import numpy as np
 
 from .._checks import check_bool, check_int, check_shape
-from ..io.images import _READ_EXTENSIONS, check_folder
+from ..io.images import READ_EXTENSIONS, check_folder
 from ..methods.twopass import auto_window
-from ..scene.scene import _check_ior
+from ..scene.scene import check_ior
 from .checkpoint import run_rounds
-from .recover import MIN_WINDOW, START_MISFIT, WINDOW_MARGIN, _load_target, recover_surface
+from .recover import MIN_WINDOW, START_MISFIT, WINDOW_MARGIN, load_target, recover_surface
 
 
 @dataclasses.dataclass(frozen=True)
@@ -71,14 +71,14 @@ def frame_paths(folder: str | os.PathLike) -> list[Path]:
     folder = Path(folder)
     if not folder.is_dir():
         raise ValueError(f"`frames` {str(folder)!r} is not a folder")
-    paths = sorted(p for p in folder.iterdir() if p.suffix.lower() in _READ_EXTENSIONS)
+    paths = sorted(p for p in folder.iterdir() if p.suffix.lower() in READ_EXTENSIONS)
     if not paths:
         raise ValueError(f"`frames`: no PNG, JPEG, TIFF or EXR files in {str(folder)!r}")
     return paths
 
 
 def load_frames(frames, ior) -> list[np.ndarray]:
-    """Every frame read and checked (`_load_target`) before any is recovered; files
+    """Every frame read and checked (`load_target`) before any is recovered; files
     are scaled to unit mean (their scale is arbitrary)."""
     if isinstance(frames, (str, os.PathLike)):
         frames = frame_paths(frames)
@@ -94,7 +94,7 @@ def load_frames(frames, ior) -> list[np.ndarray]:
     loaded = []
     for k, frame in enumerate(frames):
         try:
-            image = _load_target(frame, ior)
+            image = load_target(frame, ior)
         except FileNotFoundError as err:
             raise FileNotFoundError(f"`frames[{k}]`: {err}") from err
         except ValueError as err:
@@ -171,7 +171,7 @@ def recover_sequence(
         check_int(options["samples_x"], "samples_x", 1)
         if options.get("channels_y") is not None:
             check_int(options["channels_y"], "channels_y", 0)
-    ior = _check_ior(options.get("ior", 1.333))
+    ior = check_ior(options.get("ior", 1.333))
     images = load_frames(frames, ior)
     options = {**options, "normalize": False}  # files were scaled when read
     count = len(images)

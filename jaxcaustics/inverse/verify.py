@@ -19,7 +19,7 @@ from .. import reference
 from .._checks import check_int, check_real_array
 from ..scene.mesh import Mesh, MeshScene
 from ..scene.scene import DirectionalLight, LensScene, PlaneReceiver
-from .design import _check_mask
+from .design import check_mask
 from .export import lens_solid
 
 SUN_DIAMETER_DEG = 0.53
@@ -48,7 +48,7 @@ def relative_l2(image, target, mask=None) -> float:
     b = _image(target, "target")
     a = _image(image, "image", b.shape)
     if mask is not None:
-        m = _check_mask(mask, b.shape)
+        m = check_mask(mask, b.shape)
         a, b = a[m], b[m]
     if not b.max() > 0:
         raise ValueError("`target` is zero everywhere (inside `mask`)")
@@ -158,7 +158,7 @@ def verify_lens(
     target = _image(target, "target", scene.receiver.shape)  # the screen's
     if not target.max() > 0:
         raise ValueError("`target` must be finite, non-negative and not all zero")
-    if mask is not None and not np.any(target[_check_mask(mask, target.shape)] > 0):
+    if mask is not None and not np.any(target[check_mask(mask, target.shape)] > 0):
         raise ValueError("`target` is zero everywhere inside `mask`")
     check_int(photons_per_axis, "photons_per_axis", 2, MAX_PHOTONS_PER_AXIS)
     check_int(sun_samples, "sun_samples", 1, MAX_SUN_SAMPLES)

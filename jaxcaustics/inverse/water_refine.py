@@ -6,7 +6,7 @@ fails, and its irradiance fit cannot follow. This fit compares images instead: t
 rays of `water_start.RayMap` (the exact rays through the bicubic surface above the
 cell corners) carry each cell's light onto the floor, where the two triangles of the
 cell's landed quadrilateral deposit it with exact pixel overlaps
-(`_raster.rasterize_exact`, the caustic-triangles rasteriser: a folded triangle keeps
+(`reconstruct.raster.rasterize_exact`, the caustic-triangles rasteriser: a folded triangle keeps
 its flux over its absolute area, overlapping cells add). The residual is the
 difference of that image and the target, both blurred by a Gaussian of ``sigma``
 pixels; a schedule of decreasing ``sigma`` (coarse to fine in the image) fits the

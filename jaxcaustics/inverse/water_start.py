@@ -47,7 +47,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ..scene.surface import _catmull_rom, _padded, sample_grid
+from ..scene.surface import catmull_rom, pad_heights, sample_grid
 from ..trace.optics import refract, refract_components
 from .solvers import half_squares
 from .transport import transport_map
@@ -102,8 +102,8 @@ def at_corners(h: jax.Array, extent, boundary: str):
     conjugate-gradient iteration through `height_and_gradient`'s gathers, 5 ms so)."""
     rows, cols = h.shape
     x0, x1, y0, y1 = extent
-    w, dw, _ = _catmull_rom(jnp.asarray(0.5, h.dtype))
-    p = _padded(h, boundary)  # taps of corner (i, j): p[i + 1 + a, j + 1 + b]
+    w, dw, _ = catmull_rom(jnp.asarray(0.5, h.dtype))
+    p = pad_heights(h, boundary)  # taps of corner (i, j): p[i + 1 + a, j + 1 + b]
     value = hx = hy = 0.0
     for a in range(4):
         taps = [p[1 + a : 2 + a + rows, 1 + b : 2 + b + cols] for b in range(4)]

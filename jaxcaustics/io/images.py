@@ -37,7 +37,7 @@ __all__ = ["read_exr", "read_image", "write_exr", "write_png", "write_png_linear
 
 _EXR_LAYOUT_KEY = "jaxcaustics_layout"
 _PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
-_READ_EXTENSIONS = (".png", ".jpg", ".jpeg", ".tif", ".tiff", ".exr")
+READ_EXTENSIONS = (".png", ".jpg", ".jpeg", ".tif", ".tiff", ".exr")
 # Rec. 709 luminance weights (the same as `skimage.color.rgb2gray`).
 _LUMA = np.array([0.2125, 0.7154, 0.0721])
 
@@ -458,7 +458,7 @@ def read_image(path, *, as_gray: bool = True) -> np.ndarray:
     ValueError
         For an unknown extension or an unreadable or corrupt file.
     """
-    p = _as_path(path, _READ_EXTENSIONS)
+    p = _as_path(path, READ_EXTENSIONS)
     as_gray = check_bool(as_gray, "as_gray")
     _check_input_file(p)
     if p.suffix.lower() == ".exr":

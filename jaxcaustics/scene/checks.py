@@ -30,7 +30,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .ellipsoid import Ellipsoid, EllipsoidScene, _lowest_z
+from .ellipsoid import Ellipsoid, EllipsoidScene, lowest_z
 from .mesh import Mesh, MeshScene
 from .scene import DirectionalLight, LensScene, PointLight, WaterScene
 
@@ -163,7 +163,7 @@ def _ellipsoid_rules(scene: EllipsoidScene, xp) -> list[Rule]:
                 f"`{name}.radii` must be positive",
             )
         )
-        below = _lowest_z(ell) < -1e-9 * xp.max(xp.abs(ell.radii))
+        below = lowest_z(ell) < -1e-9 * xp.max(xp.abs(ell.radii))
         rules.append(
             (
                 lambda s, where=where: where(s).center,

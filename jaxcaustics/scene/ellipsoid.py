@@ -24,12 +24,12 @@ from .scene import (
     Effects,
     PlaneReceiver,
     PointLight,
-    _as_float_array,
-    _check_finite,
-    _check_ior,
-    _check_positive_scalar,
-    _check_sequence_of,
-    _is_concrete,
+    as_float_array,
+    check_finite,
+    check_ior,
+    check_positive_scalar,
+    check_sequence_of,
+    is_concrete,
 )
 
 # Largest |R^T R - I| entry accepted for an orthonormal rotation.
@@ -39,19 +39,19 @@ MAX_SUBDIVISIONS = 8
 
 
 def _check_vector3(value, name: str) -> Array:
-    arr = _as_float_array(value, name)
+    arr = as_float_array(value, name)
     if arr.shape != (3,):
         raise ValueError(f"`{name}` must have shape (3,), got {arr.shape}")
-    _check_finite(arr, name)
+    check_finite(arr, name)
     return arr
 
 
 def _check_rotation(value, name: str = "rotation") -> Array:
-    rot = _as_float_array(value, name)
+    rot = as_float_array(value, name)
     if rot.shape != (3, 3):
         raise ValueError(f"`{name}` must have shape (3, 3), got {rot.shape}")
-    _check_finite(rot, name)
-    if _is_concrete(rot):
+    check_finite(rot, name)
+    if is_concrete(rot):
         r = np.asarray(rot, dtype=np.float64)
         error = float(np.abs(r.T @ r - np.eye(3)).max())
         if error > _ORTHO_TOL:
@@ -83,7 +83,7 @@ class Ellipsoid(eqx.Module):
     def __init__(self, center, radii, rotation=None):
         self.center = _check_vector3(center, "center")
         r = _check_vector3(radii, "radii")
-        if _is_concrete(r):
+        if is_concrete(r):
             rn = np.asarray(r)
             if not bool(np.all(rn > 0)):
                 raise ValueError(f"`radii` must be positive, got {rn.tolist()}")
@@ -97,7 +97,7 @@ class Ellipsoid(eqx.Module):
     @classmethod
     def sphere(cls, center, radius) -> Ellipsoid:
         """A sphere of `radius` (scalar, metres, > 0) about `center` ``(3,)``."""
-        r = _check_positive_scalar(radius, "radius")
+        r = check_positive_scalar(radius, "radius")
         return cls(center, r * jnp.ones(3, r.dtype))
 
     @property
@@ -130,7 +130,7 @@ class Ellipsoid(eqx.Module):
         return Mesh(vertices, np.asarray(sphere.faces))
 
 
-def _lowest_z(ellipsoid: Ellipsoid) -> Array:
+def lowest_z(ellipsoid: Ellipsoid) -> Array:
     return ellipsoid.center[2] - ellipsoid.half_extents[2]
 
 
@@ -139,7 +139,7 @@ def _overlap(a: Ellipsoid, b: Ellipsoid) -> bool:
     (about their centres, of their smallest semi-axes) overlap by more than rounding
     (1e-6 relative). Touching is allowed."""
     leaves = (a.center, a.radii, b.center, b.radii)
-    if not all(_is_concrete(x) for x in leaves):
+    if not all(is_concrete(x) for x in leaves):
         return False
     gap = np.linalg.norm(np.asarray(a.center, float) - np.asarray(b.center, float))
     return bool(gap < (float(np.min(a.radii)) + float(np.min(b.radii))) * (1 - 1e-6))
@@ -202,13 +202,13 @@ class EllipsoidScene(eqx.Module):
         if not isinstance(receiver, PlaneReceiver):
             raise ValueError(f"`receiver` must be a PlaneReceiver, got {type(receiver).__name__}")
         interfaces = check_int(interfaces, "interfaces", 1, MAX_INTERFACES)
-        occluders = _check_sequence_of(occluders, "occluders", Ellipsoid)
+        occluders = check_sequence_of(occluders, "occluders", Ellipsoid)
         for name, ell in [("generator", generator)] + [
             (f"occluders[{k}]", o) for k, o in enumerate(occluders)
         ]:
             leaves = (ell.center, ell.radii, ell.rotation)
-            if all(_is_concrete(x) for x in leaves):
-                low = float(_lowest_z(ell))
+            if all(is_concrete(x) for x in leaves):
+                low = float(lowest_z(ell))
                 if low < -1e-9 * float(ell.bounding_radius):
                     raise ValueError(
                         f"`{name}` reaches below the screen (z < 0): its lowest point is at "
@@ -224,7 +224,7 @@ class EllipsoidScene(eqx.Module):
         self.light = light
         self.receiver = receiver
         self.occluders = occluders
-        self.ior = _check_ior(ior)
+        self.ior = check_ior(ior)
         self.fresnel = check_bool(fresnel, "fresnel")
         self.interfaces = interfaces
 

@@ -23,12 +23,12 @@ from .scene import (
     Effects,
     PlaneReceiver,
     PointLight,
-    _as_float_array,
-    _check_finite,
-    _check_ior,
-    _check_light,
-    _check_sequence_of,
-    _is_concrete,
+    as_float_array,
+    check_finite,
+    check_ior,
+    check_light,
+    check_sequence_of,
+    is_concrete,
 )
 
 MATERIALS = ("refractor", "mirror")
@@ -51,16 +51,16 @@ class Mesh(eqx.Module):
     faces: Int[Array, "F 3"]
 
     def __init__(self, vertices, faces):
-        v = _as_float_array(vertices, "vertices")
+        v = as_float_array(vertices, "vertices")
         if v.ndim != 2 or v.shape[1] != 3:
             raise ValueError(f"`vertices` must have shape (V, 3), got {v.shape}")
-        _check_finite(v, "vertices")
-        f = check_real_array(faces, "faces") if _is_concrete(faces) else faces
+        check_finite(v, "vertices")
+        f = check_real_array(faces, "faces") if is_concrete(faces) else faces
         if f.ndim != 2 or f.shape[1] != 3:
             raise ValueError(f"`faces` must have shape (F, 3), got {f.shape}")
         if f.shape[0] == 0:
             raise ValueError("`faces` is empty: the mesh has no triangles")
-        if _is_concrete(f):
+        if is_concrete(f):
             if not np.issubdtype(f.dtype, np.integer):
                 raise ValueError(f"`faces` must hold integer indices, got dtype {f.dtype}")
             if f.min() < 0 or f.max() >= v.shape[0]:
@@ -184,16 +184,16 @@ class MeshScene(eqx.Module):
     ):
         if not isinstance(generator, Mesh):
             raise ValueError(f"`generator` must be a Mesh, got {type(generator).__name__}")
-        _check_light(light)
+        check_light(light)
         if not isinstance(receiver, PlaneReceiver):
             raise ValueError(f"`receiver` must be a PlaneReceiver, got {type(receiver).__name__}")
         check_choice(material, "material", MATERIALS)
         check_choice(normals, "normals", NORMALS)
         interfaces = check_int(interfaces, "interfaces", 1, MAX_INTERFACES)
-        occluders = _check_sequence_of(occluders, "occluders", Mesh)
+        occluders = check_sequence_of(occluders, "occluders", Mesh)
         if (
             material == "refractor"
-            and _is_concrete(generator.faces)
+            and is_concrete(generator.faces)
             and not generator.is_watertight()
         ):
             raise ValueError(
@@ -202,8 +202,8 @@ class MeshScene(eqx.Module):
             )
         if (
             material == "refractor"
-            and _is_concrete(generator.vertices)
-            and _is_concrete(generator.faces)
+            and is_concrete(generator.vertices)
+            and is_concrete(generator.faces)
             and generator.signed_volume() <= 0.0
         ):  # it passes the watertight check, and rendered an all-zero image
             raise ValueError(
@@ -212,8 +212,8 @@ class MeshScene(eqx.Module):
             )
         if (
             isinstance(light, PointLight)
-            and _is_concrete(light.position)
-            and _is_concrete(generator.vertices)
+            and is_concrete(light.position)
+            and is_concrete(generator.vertices)
         ):
             lo = np.asarray(generator.vertices).min(axis=0)
             hi = np.asarray(generator.vertices).max(axis=0)
@@ -228,14 +228,14 @@ class MeshScene(eqx.Module):
         for name, mesh in [("generator", generator)] + [
             (f"occluders[{k}]", o) for k, o in enumerate(occluders)
         ]:
-            if _is_concrete(mesh.vertices) and float(np.min(np.asarray(mesh.vertices)[:, 2])) < 0:
+            if is_concrete(mesh.vertices) and float(np.min(np.asarray(mesh.vertices)[:, 2])) < 0:
                 raise ValueError(f"`{name}` reaches below the screen (z < 0)")
         self.generator = generator
         self.light = light
         self.receiver = receiver
         self.occluders = occluders
         self.material = material
-        self.ior = _check_ior(ior)
+        self.ior = check_ior(ior)
         self.fresnel = check_bool(fresnel, "fresnel")
         self.interfaces = interfaces
         self.normals = normals

@@ -42,11 +42,11 @@ from .._checks import (
 BOUNDARY_MODES = ("periodic", "clamp", "extrapolate")
 
 
-def _is_concrete(x) -> bool:
+def is_concrete(x) -> bool:
     return not isinstance(x, jax.core.Tracer)
 
 
-def _as_float_array(value, name: str) -> Array:
+def as_float_array(value, name: str) -> Array:
     """`value` (possibly traced) as a float array; strings, bools and complex numbers
     (which would lose their imaginary part) are refused."""
     arr: Any
@@ -61,17 +61,17 @@ def _as_float_array(value, name: str) -> Array:
     return jnp.asarray(arr)
 
 
-def _check_finite(arr, name: str) -> None:
-    if _is_concrete(arr) and not bool(np.all(np.isfinite(np.asarray(arr)))):
+def check_finite(arr, name: str) -> None:
+    if is_concrete(arr) and not bool(np.all(np.isfinite(np.asarray(arr)))):
         raise ValueError(f"`{name}` contains NaN or infinite values")
 
 
-def _check_extent(extent, name: str) -> Array:
-    ext = _as_float_array(extent, name)
+def check_extent(extent, name: str) -> Array:
+    ext = as_float_array(extent, name)
     if ext.shape != (4,):
         raise ValueError(f"`{name}` must be (x_min, x_max, y_min, y_max), got shape {ext.shape}")
-    _check_finite(ext, name)
-    if _is_concrete(ext):
+    check_finite(ext, name)
+    if is_concrete(ext):
         e = np.asarray(ext)
         if not (e[1] > e[0] and e[3] > e[2]):
             raise ValueError(
@@ -83,12 +83,12 @@ def _check_extent(extent, name: str) -> Array:
     return ext
 
 
-def _check_positive_scalar(value, name: str) -> Array:
-    arr = _as_float_array(value, name)
+def check_positive_scalar(value, name: str) -> Array:
+    arr = as_float_array(value, name)
     if arr.shape != ():
         raise ValueError(f"`{name}` must be a scalar, got shape {arr.shape}")
-    _check_finite(arr, name)
-    if _is_concrete(arr) and not float(arr) > 0:
+    check_finite(arr, name)
+    if is_concrete(arr) and not float(arr) > 0:
         raise ValueError(f"`{name}` must be positive, got {float(arr)}")
     return arr
 
@@ -123,22 +123,22 @@ class HeightField(eqx.Module):
     boundary: str = eqx.field(static=True)
 
     def __init__(self, heights, extent, boundary: str = "periodic", rotation=0.0):
-        h = _as_float_array(heights, "heights")
+        h = as_float_array(heights, "heights")
         if h.ndim != 2:
             raise ValueError(f"`heights` must be 2-D (rows, cols), got shape {h.shape}")
         if h.shape[0] < 2 or h.shape[1] < 2:
             raise ValueError(f"`heights` needs at least 2x2 samples, got shape {h.shape}")
-        _check_finite(h, "heights")
+        check_finite(h, "heights")
         check_choice(boundary, "boundary", BOUNDARY_MODES)
         self.heights = h
-        self.extent = _check_extent(extent, "extent")
-        rot = _as_float_array(rotation, "rotation")
+        self.extent = check_extent(extent, "extent")
+        rot = as_float_array(rotation, "rotation")
         if isinstance(rotation, (int, float)):  # a Python number: the dtype of the heights
             with np.errstate(over="ignore"):
                 rot = jnp.asarray(np.asarray(rotation, dtype=h.dtype))
         if rot.shape != ():
             raise ValueError(f"`rotation` must be a scalar (radians), got shape {rot.shape}")
-        _check_finite(rot, "rotation")
+        check_finite(rot, "rotation")
         self.rotation = rot
         self.boundary = boundary
 
@@ -162,11 +162,11 @@ class DirectionalLight(eqx.Module):
     direction: Float[Array, 3]
 
     def __init__(self, direction):
-        d = _as_float_array(direction, "direction")
+        d = as_float_array(direction, "direction")
         if d.shape != (3,):
             raise ValueError(f"`direction` must have shape (3,), got {d.shape}")
-        _check_finite(d, "direction")
-        if _is_concrete(d):
+        check_finite(d, "direction")
+        if is_concrete(d):
             dn = np.asarray(d, dtype=float)
             norm = float(np.linalg.norm(dn))
             if norm == 0.0:
@@ -214,7 +214,7 @@ class PlaneReceiver(eqx.Module):
     shape: tuple[int, int] = eqx.field(static=True)
 
     def __init__(self, extent, shape: Sequence[int]):
-        self.extent = _check_extent(extent, "extent")
+        self.extent = check_extent(extent, "extent")
         self.shape = check_shape(shape, "shape")
 
     @property
@@ -242,7 +242,7 @@ class Effects:
 def _check_surface_above(surface, depth, depth_name: str, failure: str) -> None:
     """Refuse (concrete) heights that reach below their base: ``depth + min(heights)
     <= 0``, `depth` the rest plane's height above what lies beneath."""
-    if _is_concrete(surface.heights) and _is_concrete(depth):
+    if is_concrete(surface.heights) and is_concrete(depth):
         low = float(np.min(np.asarray(surface.heights)))
         if float(depth) + low <= 0.0:
             raise ValueError(
@@ -257,7 +257,7 @@ IOR_RANGE = (0.01, 100.0)
 MAX_CHANNELS = 64
 
 
-def _check_ior(ior) -> float | tuple[float, ...]:
+def check_ior(ior) -> float | tuple[float, ...]:
     """A number gives a float, a sequence (list, tuple, 1-D array) a tuple of floats."""
     items = ior if isinstance(ior, (list, tuple)) else [ior]
     if any(isinstance(v, (bool, np.bool_)) for v in items):  # 1.0 in disguise
@@ -274,7 +274,7 @@ def _check_ior(ior) -> float | tuple[float, ...]:
     return values[0] if arr.ndim == 0 else values
 
 
-def _check_sequence_of(items, name: str, kind: type) -> tuple:
+def check_sequence_of(items, name: str, kind: type) -> tuple:
     """`items` (a list or tuple of `kind` objects) as a tuple, else a `ValueError`."""
     if not isinstance(items, (list, tuple)):
         raise ValueError(
@@ -335,8 +335,8 @@ class WaterScene(eqx.Module):
         self.surface = surface
         self.light = light
         self.receiver = receiver
-        self.rest_depth = _check_positive_scalar(rest_depth, "rest_depth")
-        self.ior = _check_ior(ior)
+        self.rest_depth = check_positive_scalar(rest_depth, "rest_depth")
+        self.ior = check_ior(ior)
         self.fresnel = check_bool(fresnel, "fresnel")
         _check_surface_above(surface, self.rest_depth, "rest_depth", "reaches the ground")
 
@@ -377,22 +377,22 @@ class PointLight(eqx.Module):
     intensity: Float[Array, ""]
 
     def __init__(self, position, intensity=1.0):
-        p = _as_float_array(position, "position")
+        p = as_float_array(position, "position")
         if p.shape != (3,):
             raise ValueError(f"`position` must have shape (3,), got {p.shape}")
-        _check_finite(p, "position")
-        if _is_concrete(p) and not float(p[2]) > 0.0:
+        check_finite(p, "position")
+        if is_concrete(p) and not float(p[2]) > 0.0:
             raise ValueError(
                 f"`position` must be above the receiver plane z = 0, got z = {float(p[2])}"
             )
         self.position = p
-        self.intensity = _check_positive_scalar(intensity, "intensity")
+        self.intensity = check_positive_scalar(intensity, "intensity")
 
 
 Light = DirectionalLight | PointLight
 
 
-def _check_light(light) -> None:
+def check_light(light) -> None:
     if not isinstance(light, (DirectionalLight, PointLight)):
         raise ValueError(
             f"`light` must be a DirectionalLight or a PointLight, got {type(light).__name__}"
@@ -453,7 +453,7 @@ class LensScene(eqx.Module):
     ):
         if not isinstance(surface, HeightField):
             raise ValueError(f"`surface` must be a HeightField, got {type(surface).__name__}")
-        _check_light(light)
+        check_light(light)
         if not isinstance(receiver, PlaneReceiver):
             raise ValueError(f"`receiver` must be a PlaneReceiver, got {type(receiver).__name__}")
         screen_distance = renamed_keyword(
@@ -463,14 +463,14 @@ class LensScene(eqx.Module):
         self.surface = surface
         self.light = light
         self.receiver = receiver
-        self.thickness = _check_positive_scalar(thickness, "thickness")
-        self.screen_distance = _check_positive_scalar(screen_distance, "screen_distance")
-        self.ior = _check_ior(ior)
+        self.thickness = check_positive_scalar(thickness, "thickness")
+        self.screen_distance = check_positive_scalar(screen_distance, "screen_distance")
+        self.ior = check_ior(ior)
         self.fresnel = check_bool(fresnel, "fresnel")
         _check_surface_above(surface, self.thickness, "thickness", "dips through the bottom face")
-        if isinstance(light, PointLight) and _is_concrete(light.position):
+        if isinstance(light, PointLight) and is_concrete(light.position):
             top = float(self.screen_distance) + float(self.thickness)
-            if _is_concrete(surface.heights):
+            if is_concrete(surface.heights):
                 top += float(np.max(np.asarray(surface.heights)))
             if not float(light.position[2]) > top:
                 raise ValueError(

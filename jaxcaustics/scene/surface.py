@@ -24,10 +24,10 @@ from .scene import HeightField
 # steps ran on for hours)
 MAX_HIT_ITERATIONS = 100
 
-_PAD_LOW, _PAD_HIGH = 3, 4  # enough for the taps of any coordinate after wrap/clamp
+PAD_LOW, PAD_HIGH = 3, 4  # enough for the taps of any coordinate after wrap/clamp
 
 
-def _catmull_rom(t: Array) -> tuple[tuple[Array, ...], tuple[Array, ...], tuple[Array, ...]]:
+def catmull_rom(t: Array) -> tuple[tuple[Array, ...], tuple[Array, ...], tuple[Array, ...]]:
     """Weights of the taps ``-1, 0, 1, 2``, their first and second derivatives."""
     t2, t3 = t * t, t * t * t
     w = (
@@ -62,8 +62,8 @@ def _gather_taps(flat: Array, first: Array, width: int) -> Array:
 
 def _bicubic_terms(flat, first, fu, fv, width: int, second: bool):
     """``H, H_u, H_v`` (and ``H_uu, H_uv, H_vv`` if `second`) in pixel units."""
-    wx, dwx, ddwx = _catmull_rom(fu)
-    wy, dwy, ddwy = _catmull_rom(fv)
+    wx, dwx, ddwx = catmull_rom(fu)
+    wy, dwy, ddwy = catmull_rom(fv)
     taps = _gather_taps(flat, first, width)
     zero = jnp.zeros(fu.shape, flat.dtype)
     h = hu = hv = huu = huv = hvv = zero
@@ -119,11 +119,11 @@ def _wrap_or_clamp(coord: Array, size: int, boundary: str) -> Array:
     return jnp.clip(coord, -2.0, size + 1.0)
 
 
-def _padded(heights: Array, boundary: str, axes=(0, 1)) -> Array:
-    """`heights` padded along `axes` for the taps (`_PAD_LOW`, `_PAD_HIGH`) by the
+def pad_heights(heights: Array, boundary: str, axes=(0, 1)) -> Array:
+    """`heights` padded along `axes` for the taps (`PAD_LOW`, `PAD_HIGH`) by the
     boundary's rule: wrapped, edge samples repeated (clamp), or odd reflection about the
     edge sample (extrapolate: ``h[-k] = 2 h[0] - h[k]``, exact for a linear surface)."""
-    pad = [(_PAD_LOW, _PAD_HIGH) if a in axes else (0, 0) for a in range(heights.ndim)]
+    pad = [(PAD_LOW, PAD_HIGH) if a in axes else (0, 0) for a in range(heights.ndim)]
     if boundary == "periodic":
         return jnp.pad(heights, pad, mode="wrap")
     if boundary == "extrapolate":
@@ -183,13 +183,13 @@ def height_and_gradient(
     u_raw, v_raw = (x - x0) / dx - 0.5, (y - y0) / dy - 0.5
     u = _wrap_or_clamp(u_raw, cols, surface.boundary)
     v = _wrap_or_clamp(v_raw, rows, surface.boundary)
-    padded = _padded(surface.heights, surface.boundary)
-    width = cols + _PAD_LOW + _PAD_HIGH
+    padded = pad_heights(surface.heights, surface.boundary)
+    width = cols + PAD_LOW + PAD_HIGH
     u_base = jax.lax.stop_gradient(jnp.floor(u))
     v_base = jax.lax.stop_gradient(jnp.floor(v))
     # flat index of tap (-1, -1) in the padded array
-    first = (v_base.astype(jnp.int32) + _PAD_LOW - 1) * width
-    first = first + u_base.astype(jnp.int32) + _PAD_LOW - 1
+    first = (v_base.astype(jnp.int32) + PAD_LOW - 1) * width
+    first = first + u_base.astype(jnp.int32) + PAD_LOW - 1
     terms = _bicubic(padded.reshape(-1), first, u - u_base, v - v_base, width, curvature)
     h, hu, hv = terms[:3]
     if surface.boundary == "extrapolate":  # level beyond the clipped coordinate

@@ -26,7 +26,7 @@ import numpy as np
 from jaxtyping import Array, Float
 
 from .._checks import check_number, check_real_array, check_shape
-from .scene import _check_extent
+from .scene import check_extent, is_concrete
 
 __all__ = ["GRAVITY", "gaussian_bump", "sine_sum", "wave_heights"]
 
@@ -35,10 +35,6 @@ GRAVITY = 9.81
 
 # Above this many candidate wave vectors `wavelength_range` is too wide for the extent.
 _MAX_CANDIDATES = 4_000_000
-
-
-def _is_concrete(x) -> bool:
-    return not isinstance(x, jax.core.Tracer)
 
 
 def _concrete_extent(extent) -> tuple[float, float, float, float]:
@@ -76,7 +72,7 @@ def _scalar(
 ) -> Array:
     """A float scalar (possibly traced); checked when concrete, also for fitting the
     float dtype it is computed in."""
-    if not _is_concrete(value):
+    if not is_concrete(value):
         if jnp.ndim(value) != 0:
             raise ValueError(f"`{name}` must be a scalar, got shape {jnp.shape(value)}")
         return jnp.asarray(value, dtype=jnp.result_type(float, value))
@@ -300,7 +296,7 @@ def wave_heights(
     cy_a = jnp.asarray(np.cos(py) * amp, dtype)
     sy_a = jnp.asarray(np.sin(py) * amp, dtype)
 
-    deep = _is_concrete(depth) and math.isinf(float(depth))
+    deep = is_concrete(depth) and math.isinf(float(depth))
     return _sum_waves(
         cx,
         sx,
@@ -334,7 +330,7 @@ def _sum_waves(cx, sx, cy_a, sy_a, k, phase, amplitude, depth, time, *, deep: bo
 
 def _extent_array(extent) -> Array:
     """The extent as a float array, possibly traced (checked fully when concrete)."""
-    return _check_extent(extent, "extent")
+    return check_extent(extent, "extent")
 
 
 def gaussian_bump(
@@ -378,7 +374,7 @@ def gaussian_bump(
         c = jnp.asarray(center)
         if c.shape != (2,):
             raise ValueError(f"`center` must be (x, y), got shape {c.shape}")
-        if _is_concrete(c) and not bool(np.all(np.isfinite(np.asarray(c)))):
+        if is_concrete(c) and not bool(np.all(np.isfinite(np.asarray(c)))):
             raise ValueError(f"`center` must be finite, got {np.asarray(c).tolist()}")
     dtype = _float_dtype(ext, c, sigma, amplitude)
     return _gaussian(ext.astype(dtype), c.astype(dtype), sigma, amplitude, shape=shape)
@@ -439,7 +435,7 @@ def sine_sum(
         kx, ky, a, ph = t
         ints = []
         for name, kval in (("kx", kx), ("ky", ky)):
-            if not _is_concrete(kval):
+            if not is_concrete(kval):
                 raise ValueError(f"`terms[{i}]` {name} must be a concrete int, not traced")
             try:
                 kf = float(check_real_array(kval, "terms"))  # no strings, bools, arrays

@@ -72,7 +72,7 @@ def _stack_channels(positions, directions, densities, valids, cell_area, dtype) 
     )
 
 
-def _grid(lo_u, hi_u, lo_v, hi_v, shape: tuple[int, int], dtype, band=None):
+def corner_grid(lo_u, hi_u, lo_v, hi_v, shape: tuple[int, int], dtype, band=None):
     """Vertices of a ``rows x cols`` grid spanning the rectangle (edges included).
 
     `band`: ``(start, count)``: only the grid rows ``start .. start + count - 1``
@@ -141,7 +141,7 @@ def lens_photons(
     surface = scene.surface
     dtype = surface.heights.dtype
     x0, x1, y0, y1 = surface.extent
-    u, v, cell_area = _grid(x0, x1, y0, y1, grid, dtype, band)
+    u, v, cell_area = corner_grid(x0, x1, y0, y1, grid, dtype, band)
     # the grid turns with the surface about the extent's centre
     cx, cy = 0.5 * (x0 + x1), 0.5 * (y0 + y1)
     cos_r, sin_r = jnp.cos(surface.rotation), jnp.sin(surface.rotation)
@@ -188,7 +188,7 @@ def lens_photons(
     return _clip_band(photons, grid, band)
 
 
-def _emission_frame(scene: MeshScene, dtype):
+def emission_frame(scene: MeshScene, dtype):
     """Centre, half-width and unit axes of the emission square that covers the generator.
 
     The centre and half-width are rounded outwards to a coarse grid (a sixteenth of the
@@ -229,7 +229,7 @@ def mesh_photons(
     """Trace a ``rows x cols`` grid of photons through a `MeshScene`.
 
     The grid spans the square ``[-r, r]^2`` (``r``: the generator's bounding radius,
-    rounded up; see `_emission_frame`) on the plane through the generator's bounding-box
+    rounded up; see `emission_frame`) on the plane through the generator's bounding-box
     centre, perpendicular to the light (a point light's axis points at that centre). Each photon
     follows up to ``scene.interfaces`` interface events (see `MeshScene`); which triangle
     it meets is found among the triangles (`nearest_hits`: brute force for a few, a
@@ -245,8 +245,8 @@ def mesh_photons(
     `band` (optional) ``(start, count)``: only those grid rows, as in `lens_photons`.
     """
     dtype = scene.generator.vertices.dtype
-    centre, radius, axis, e1, e2 = _emission_frame(scene, dtype)
-    u, v, cell_area = _grid(-radius, radius, -radius, radius, grid, dtype, band)
+    centre, radius, axis, e1, e2 = emission_frame(scene, dtype)
+    u, v, cell_area = corner_grid(-radius, radius, -radius, radius, grid, dtype, band)
     plane = centre + u[..., None] * e1 + v[..., None] * e2  # (rows, cols, 3)
     plane = plane.reshape(-1, 3)
     if isinstance(scene.light, DirectionalLight):
@@ -288,7 +288,7 @@ def trace_mesh_rays(
     valid (P,))`` per index of refraction; ``flux`` is 0 where not valid.
     """
     dtype = o0.dtype
-    radius = _emission_frame(scene, dtype)[1]
+    radius = emission_frame(scene, dtype)[1]
     verts = scene.generator.vertices
     triangles = verts[scene.generator.faces]
     fnormals = face_normals(verts, scene.generator.faces)

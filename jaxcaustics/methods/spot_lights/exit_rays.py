@@ -22,11 +22,11 @@ from ...scene.ellipsoid import Ellipsoid, EllipsoidScene
 from ...scene.mesh import MeshScene
 from ...scene.scene import (
     DirectionalLight,
-    _as_float_array,
-    _is_concrete,
+    as_float_array,
+    is_concrete,
 )
 from ...trace.optics import fresnel_transmittance, orthonormal_basis, refract_components
-from ...trace.photons import _emission_frame, trace_mesh_rays
+from ...trace.photons import emission_frame, trace_mesh_rays
 
 
 class ExitRays(eqx.Module):
@@ -80,7 +80,7 @@ def _unit(v):
     return v / jnp.sqrt(_dot(v, v))
 
 
-def _surface_hit(ellipsoid: Ellipsoid, o, d, inside):
+def ellipsoid_hit(ellipsoid: Ellipsoid, o, d, inside):
     """Where rays ``o + t d`` ``(R, 3)`` meet the ellipsoid's surface.
 
     The ray is mapped into the frame where the ellipsoid is the unit sphere
@@ -126,7 +126,7 @@ def _trace_ellipsoid_paths(ellipsoid: Ellipsoid, o, d, ior, interfaces: int, fre
 
     def event(carry, first):
         o, d, inside, met, factor = carry
-        t, hit, normal = _surface_hit(ellipsoid, o, d, inside)
+        t, hit, normal = ellipsoid_hit(ellipsoid, o, d, inside)
         active = hit & (inside | first)
         eta = jnp.where(inside, ior, 1.0 / ior)
         comps, tir, cos_i = refract_components(tuple(d.T), tuple(normal.T), eta)
@@ -171,7 +171,7 @@ def _mesh_exit_rays(scene: MeshScene, direction, n: int, channel: int) -> ExitRa
     verts = scene.generator.vertices
     dtype = verts.dtype
     direction = _unit(direction.astype(dtype))
-    centre, radius = _emission_frame(scene, dtype)[:2]
+    centre, radius = emission_frame(scene, dtype)[:2]
     plane, spacing = _square_grid(centre, radius, direction, n)
     o0 = plane - 3.0 * radius * direction
     d0 = jnp.broadcast_to(direction, o0.shape)
@@ -215,7 +215,7 @@ def trace_exit_rays(
     the object's bounding sphere, seen along `direction`: for an ellipsoid the sphere
     about its `center` of radius `bounding_radius` (the grid moves and scales with the
     ellipsoid: it is part of the differentiable function), for a mesh the generator's
-    bounding sphere rounded outwards (see `_emission_frame`; held fixed under
+    bounding sphere rounded outwards (see `emission_frame`; held fixed under
     differentiation). Each ray starts three radii before the grid's plane, refracts into
     the object (index ``scene.iors[channel]``), meets the surface from inside (total
     internal reflection reflects it and it goes on), refracts out and becomes an exit
@@ -258,13 +258,13 @@ def trace_exit_rays(
             raise ValueError("`direction` is required: the scene's light is not a DirectionalLight")
         direction = scene.light.unit_direction
     if not isinstance(direction, jax.Array):
-        direction = _as_float_array(direction, "direction")
+        direction = as_float_array(direction, "direction")
     if direction.shape != (3,) or not jnp.issubdtype(direction.dtype, jnp.floating):
         raise ValueError(
             f"`direction` must be a float array of shape (3,), got {direction.dtype} "
             f"{direction.shape}"
         )
-    if _is_concrete(direction):
+    if is_concrete(direction):
         d = np.asarray(direction)
         if not np.all(np.isfinite(d)) or not np.any(d):
             raise ValueError(f"`direction` must be finite and non-zero, got {d.tolist()}")

@@ -37,7 +37,7 @@ import optimistix as optx
 from jaxtyping import Array, Float, Int
 
 from ..._checks import check_array, check_fits, check_int, check_memory_limit, check_number
-from ...scene.scene import _as_float_array, _check_finite, _is_concrete
+from ...scene.scene import as_float_array, check_finite, is_concrete
 from ...trace.optics import orthonormal_basis
 from .exit_rays import ExitRays
 from .lights import SpotLights
@@ -123,9 +123,9 @@ def ray_set(origin, direction, energy, *, spacing=None, centre=None, size=None) 
     energy > 0; a missing `spacing` is ``size / sqrt(number of such rays)`` (rays spread
     evenly over a square of side `size`).
     """
-    origin = _as_float_array(origin, "origin")
-    direction = _as_float_array(direction, "direction")
-    energy = _as_float_array(energy, "energy")
+    origin = as_float_array(origin, "origin")
+    direction = as_float_array(direction, "direction")
+    energy = as_float_array(energy, "energy")
     if origin.ndim != 2 or origin.shape[-1] != 3:
         raise ValueError(f"`origin` must have shape (R, 3), got {origin.shape}")
     n = origin.shape[0]
@@ -138,10 +138,10 @@ def ray_set(origin, direction, energy, *, spacing=None, centre=None, size=None) 
     if n == 0:
         raise ValueError("`origin` must hold at least one ray, got shape (0, 3)")
     for name, arr in (("origin", origin), ("direction", direction), ("energy", energy)):
-        _check_finite(arr, name)
-    if _is_concrete(energy) and np.any(np.asarray(energy) < 0):
+        check_finite(arr, name)
+    if is_concrete(energy) and np.any(np.asarray(energy) < 0):
         raise ValueError("`energy` must be >= 0")
-    if _is_concrete(direction) and _is_concrete(energy):
+    if is_concrete(direction) and is_concrete(energy):
         still = (np.sum(np.asarray(direction) ** 2, axis=-1) == 0) & (np.asarray(energy) > 0)
         if np.any(still):
             raise ValueError(
@@ -162,21 +162,21 @@ def ray_set(origin, direction, energy, *, spacing=None, centre=None, size=None) 
             centre = 0.5 * (lo + hi)
         if size is None:
             size = jnp.maximum(jnp.max(hi - lo), jnp.finfo(dtype).tiny)
-    centre = _as_float_array(centre, "centre").astype(dtype)
-    size = _as_float_array(size, "size").astype(dtype)
+    centre = as_float_array(centre, "centre").astype(dtype)
+    size = as_float_array(size, "size").astype(dtype)
     if centre.shape != (3,):
         raise ValueError(f"`centre` must have shape (3,), got {centre.shape}")
     if size.shape != ():
         raise ValueError(f"`size` must be a scalar, got shape {size.shape}")
     if spacing is None:
         spacing = size / jnp.sqrt(jnp.maximum(jnp.sum(valid), 1).astype(dtype))
-    spacing = _as_float_array(spacing, "spacing").astype(dtype)
+    spacing = as_float_array(spacing, "spacing").astype(dtype)
     if spacing.shape != ():
         raise ValueError(f"`spacing` must be a scalar, got shape {spacing.shape}")
     for name, arr in (("centre", centre), ("size", size), ("spacing", spacing)):
-        _check_finite(arr, name)
+        check_finite(arr, name)
     for name, arr in (("size", size), ("spacing", spacing)):
-        if _is_concrete(arr) and not float(arr) > 0:
+        if is_concrete(arr) and not float(arr) > 0:
             raise ValueError(f"`{name}` must be positive, got {float(arr)}")
     return RaySet(origin, direction, energy, spacing, centre, size)
 
@@ -213,7 +213,7 @@ def as_ray_set(rays: Any) -> RaySet:
 def _check_float(value, name: str, *, low: float, high: float = math.inf, closed: bool = False):
     """A finite real number in ``(low, high)`` (``(low, high]`` if `closed`); bools and
     strings are refused; a traced value passes unchecked."""
-    if not _is_concrete(value):
+    if not is_concrete(value):
         return value
     return check_number(value, name, low=low, high=high, low_open=True, high_open=not closed)
 
@@ -557,9 +557,9 @@ def refine_axis(
     energy = check_array(energy, "energy", (r,))
     axis_point = check_array(axis_point, "axis_point", (3,))
     axis_direction = check_array(axis_direction, "axis_direction", (3,))
-    if _is_concrete(energy) and np.any(np.asarray(energy) < 0):
+    if is_concrete(energy) and np.any(np.asarray(energy) < 0):
         raise ValueError("`energy` must be >= 0")
-    if _is_concrete(axis_direction) and not np.any(np.asarray(axis_direction)):
+    if is_concrete(axis_direction) and not np.any(np.asarray(axis_direction)):
         raise ValueError("`axis_direction` must be a non-zero (unit) vector")
     distance_threshold, angle_threshold_deg, iterations = check_refine_knobs(
         distance_threshold, angle_threshold_deg, iterations

@@ -34,12 +34,12 @@ from ..._checks import (
 from ...scene.ellipsoid import Ellipsoid
 from ...scene.scene import (
     PlaneReceiver,
-    _as_float_array,
-    _check_finite,
-    _check_sequence_of,
-    _is_concrete,
+    as_float_array,
+    check_finite,
+    check_sequence_of,
+    is_concrete,
 )
-from .exit_rays import _surface_hit
+from .exit_rays import ellipsoid_hit
 
 
 class SpotLights(eqx.Module):
@@ -72,22 +72,22 @@ class SpotLights(eqx.Module):
     active: Bool[Array, " K"]
 
     def __init__(self, origin, axis, frame_u, alpha, beta, half_width, image, active=None):
-        origin = _as_float_array(origin, "origin")
+        origin = as_float_array(origin, "origin")
         if origin.ndim != 2 or origin.shape[-1] != 3:
             raise ValueError(f"`origin` must have shape (K, 3), got {origin.shape}")
         k = origin.shape[0]
-        axis = _as_float_array(axis, "axis")
-        frame_u = _as_float_array(frame_u, "frame_u")
+        axis = as_float_array(axis, "axis")
+        frame_u = as_float_array(frame_u, "frame_u")
         for name, arr in (("axis", axis), ("frame_u", frame_u)):
             if arr.shape != (k, 3):
                 raise ValueError(f"`{name}` must have shape ({k}, 3), got {arr.shape}")
-        alpha = _as_float_array(alpha, "alpha")
-        beta = _as_float_array(beta, "beta")
-        half_width = _as_float_array(half_width, "half_width")
+        alpha = as_float_array(alpha, "alpha")
+        beta = as_float_array(beta, "beta")
+        half_width = as_float_array(half_width, "half_width")
         for name, arr in (("alpha", alpha), ("beta", beta), ("half_width", half_width)):
             if arr.shape != (k,):
                 raise ValueError(f"`{name}` must have shape ({k},), got {arr.shape}")
-        image = _as_float_array(image, "image")
+        image = as_float_array(image, "image")
         if (
             image.ndim != 3
             or image.shape[0] != k
@@ -105,24 +105,24 @@ class SpotLights(eqx.Module):
             )
         active = jnp.asarray(active)
         for name, arr in (("origin", origin), ("axis", axis), ("frame_u", frame_u)):
-            _check_finite(arr, name)
+            check_finite(arr, name)
         for name, arr in (("beta", beta), ("half_width", half_width), ("image", image)):
-            _check_finite(arr, name)
-        if _is_concrete(alpha):
+            check_finite(arr, name)
+        if is_concrete(alpha):
             a = np.asarray(alpha)
             if np.any(np.isnan(a)) or np.any(a <= 0):
                 raise ValueError(f"`alpha` must be positive (inf: collimated), got {a.tolist()}")
-        if _is_concrete(beta) and np.any(np.asarray(beta) < 0):
+        if is_concrete(beta) and np.any(np.asarray(beta) < 0):
             raise ValueError(f"`beta` must be >= 0, got {np.asarray(beta).tolist()}")
-        if _is_concrete(half_width) and np.any(np.asarray(half_width) <= 0):
+        if is_concrete(half_width) and np.any(np.asarray(half_width) <= 0):
             raise ValueError("`half_width` must be positive")
-        if _is_concrete(image) and np.any(np.asarray(image) < 0):
+        if is_concrete(image) and np.any(np.asarray(image) < 0):
             raise ValueError("`image` must be >= 0 (an intensity)")
-        if _is_concrete(axis) and np.any(np.linalg.norm(np.asarray(axis), axis=-1) == 0):
+        if is_concrete(axis) and np.any(np.linalg.norm(np.asarray(axis), axis=-1) == 0):
             raise ValueError("`axis` must be non-zero")
         axis = axis / jnp.linalg.norm(axis, axis=-1, keepdims=True)
         frame_u = frame_u - jnp.sum(frame_u * axis, -1, keepdims=True) * axis
-        if _is_concrete(frame_u) and np.any(np.linalg.norm(np.asarray(frame_u), axis=-1) < 1e-9):
+        if is_concrete(frame_u) and np.any(np.linalg.norm(np.asarray(frame_u), axis=-1) < 1e-9):
             raise ValueError("`frame_u` must not be parallel to `axis`")
         self.origin = origin
         self.axis = axis
@@ -419,10 +419,10 @@ class Glossy(eqx.Module):
     shininess: float = 40.0
 
     def __init__(self, eye, albedo=0.5, specular=0.5, shininess=40.0):
-        eye = _as_float_array(eye, "eye")
+        eye = as_float_array(eye, "eye")
         if eye.shape != (3,):
             raise ValueError(f"`eye` must have shape (3,), got {eye.shape}")
-        _check_finite(eye, "eye")
+        check_finite(eye, "eye")
         self.eye = eye
         self.albedo = _shading_number(albedo, "albedo", 1.0)
         self.specular = _shading_number(specular, "specular", 1.0)
@@ -436,7 +436,7 @@ def _segment_blocked(start, end, occluder) -> Bool[Array, "..."]:
     start = jnp.broadcast_to(start, shape).reshape(-1, 3)
     step = jnp.broadcast_to(end, shape).reshape(-1, 3) - start
     inside = jnp.zeros(start.shape[:1], bool)
-    t, hit, _ = _surface_hit(occluder, start, step, inside)
+    t, hit, _ = ellipsoid_hit(occluder, start, step, inside)
     return (hit & (t < 1.0)).reshape(shape[:-1])
 
 
@@ -482,7 +482,7 @@ def shade_points(
         raise ValueError(
             f"`normals` must have the shape of `points` {points.shape}, got {normals.shape}"
         )
-    if _is_concrete(normals) and np.any(np.sum(np.asarray(normals) ** 2, axis=-1) == 0):
+    if is_concrete(normals) and np.any(np.sum(np.asarray(normals) ** 2, axis=-1) == 0):
         raise ValueError("`normals` must be non-zero (unit normals)")
     check_fits(
         points.shape[0] * point_bytes(jnp.result_type(points.dtype, lights.origin.dtype)),
@@ -499,7 +499,7 @@ def _shading_arguments(lights, shading, occluders, max_gain, axis_epsilon, inten
     options = _check_options(lights, max_gain, axis_epsilon, intensity_correction)
     if shading is not None and not isinstance(shading, (Lambertian, Glossy)):
         raise ValueError(f"`shading` must be None, Lambertian or Glossy, got {shading!r}")
-    return shading, _check_sequence_of(occluders, "occluders", Ellipsoid), options
+    return shading, check_sequence_of(occluders, "occluders", Ellipsoid), options
 
 
 @eqx.filter_jit
