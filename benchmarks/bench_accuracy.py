@@ -25,12 +25,19 @@ a glass ball: spot lights fitted per frame, the mesh methods on the ball as a me
 for the report only, spot lights interpolated from a precomputed table).
 
 Writes the table ``jaxcaustics/data/accuracy.json`` (``--table``; read by
-`render(scene, tolerance=...)`) and the report ``accuracy.md`` with ``accuracy.png``
-(``--output``, default ``benchmarks/results/``). Knobs that must grow with the receiver's
-resolution (photon grids) are stored as ``{"per_pixel": f}``: ``round(f * max(rows,
-cols))`` (`resolve_knobs`).
+`render(scene, tolerance=...)`; it holds the raw rows and the run's environment) and the
+report ``accuracy.md`` with ``accuracy.png`` (``--output``, default
+``benchmarks/results/``). Knobs that must grow with the receiver's resolution (photon
+grids) are stored as ``{"per_pixel": f}``: ``round(f * max(rows, cols))``
+(`resolve_knobs`).
 
-    python benchmarks/bench_accuracy.py                    # full run (~30 min, 2 cores)
+To regenerate ``jaxcaustics/data/accuracy.json``, with ``benchmarks/results/accuracy.md``
+and ``accuracy.png``, run the full benchmark (no arguments, about 30 minutes on 2 cores)::
+
+    python benchmarks/bench_accuracy.py
+
+Other uses::
+
     python benchmarks/bench_accuracy.py --quick --output /tmp/acc --table /tmp/acc/a.json
     python benchmarks/bench_accuracy.py --kinds water,lens # redo some kinds; the others
                                                            # are kept from the table
@@ -42,13 +49,10 @@ from __future__ import annotations
 import argparse
 import json
 import math
-import os
-import statistics
-import subprocess
+import sys
 import time
 from pathlib import Path
 
-import jax
 import numpy as np
 
 import jaxcaustics as jc
@@ -56,6 +60,9 @@ from jaxcaustics import reference
 from jaxcaustics.methods.choose import as_mesh_scene as _as_mesh_scene
 from jaxcaustics.methods.choose import resolve_knobs
 from jaxcaustics.methods.registry import METHODS
+
+sys.path.insert(0, str(Path(__file__).parent))  # the harness beside this script
+from harness import environment, git_commit, load, once, pick, timed  # noqa: E402
 
 ROOT = Path(__file__).resolve().parent.parent
 RESULTS = ROOT / "benchmarks" / "results"
@@ -282,29 +289,6 @@ def scene_for_row(scene, row: dict):
 # --------------------------------------------------------------------------- measures
 
 
-def load() -> list[float]:
-    return [round(x, 2) for x in os.getloadavg()]
-
-
-def run_once(fn):
-    start = time.perf_counter()
-    out = jax.block_until_ready(fn())
-    return time.perf_counter() - start, out
-
-
-def timed(fn, repeats=5, budget_s=10.0):
-    """``(first call s, median s, runs, output)``: a first call (compiles), then up to
-    `repeats` timed calls, at least 3, fewer once they took over `budget_s`."""
-    first, out = run_once(fn)
-    times = []
-    while len(times) < repeats:
-        took, out = run_once(fn)
-        times.append(took)
-        if len(times) >= 3 and sum(times) > budget_s:
-            break
-    return first, statistics.median(times), len(times), out
-
-
 def knob_label(method: str, knobs: dict, as_mesh) -> str:
     """A short label: ``photons 65^2, gouraud``, ``N 3 M 2 S 2 it 3``..."""
     if method == "twopass":
@@ -351,17 +335,18 @@ def measure_row(scene, truth, method, knobs, as_mesh, config) -> dict:
     target = scene_for_row(scene, row)
     call_knobs = resolve_knobs(method, row["knobs"], scene.receiver.shape, scene.receiver.shape)
     assert call_knobs == knobs, (call_knobs, knobs)
-    first, median, runs, (image, stats) = timed(
+    t = timed(
         lambda: jc.render(target, method, return_stats=True, **call_knobs),
-        config["repeats"],
-        config["budget_s"],
+        repeats=config["repeats"],
+        budget_s=config["budget_s"],
     )
+    image, stats = t.out
     row.update(
         error=jc.image_error(image, truth),
         missed_flux=float(np.max(np.asarray(stats["missed_flux_fraction"]))),
-        time_s=median,
-        compile_s=max(first - median, 0.0),
-        runs=runs,
+        time_s=t.median,
+        compile_s=max(t.compile_s, 0.0),
+        runs=t.runs,
         label=knob_label(method, knobs, as_mesh),
     )
     if "lights" in stats:  # spot lights: active lights of the (first channel's) set
@@ -375,25 +360,23 @@ def table_row(scene, truth, settings, config) -> dict:
     """Spot lights interpolated per frame from `precompute_spot_lights(scene, **settings)`
     (report only): the precomputation timed once, the frame (`interpolate_spot_lights`
     then `render(scene, "spot_lights", lights=...)`) timed as the other rows."""
-    start = time.perf_counter()
-    table = jc.precompute_spot_lights(scene, progress=False, **settings)
-    precompute_s = time.perf_counter() - start
+    precompute_s, table = once(lambda: jc.precompute_spot_lights(scene, progress=False, **settings))
     direction = scene.light.unit_direction
 
     def frame():
         lights = jc.interpolate_spot_lights(table, direction)
         return jc.render(scene, "spot_lights", lights=lights)
 
-    first, median, runs, image = timed(frame, config["repeats"], config["budget_s"])
+    t = timed(frame, repeats=config["repeats"], budget_s=config["budget_s"])
     return dict(
         method="spot_lights",
         knobs={},
         as_mesh=None,
-        error=jc.image_error(image, truth),
-        time_s=median,
-        compile_s=max(first - median, 0.0),
+        error=jc.image_error(t.out, truth),
+        time_s=t.median,
+        compile_s=max(t.compile_s, 0.0),
         choosable=False,
-        runs=runs,
+        runs=t.runs,
         label=f"table sub{settings['subdivisions']}",
         precompute=dict(settings),
         precompute_s=precompute_s,
@@ -423,15 +406,11 @@ def run_kind(kind: str, config: dict, log=print) -> dict:
     scene = build(config["pixels"])
     started, load_before, commit = time.time(), load(), git_commit()
     log(f"{kind}: {build.__doc__.splitlines()[0]} load {load_before}")
-    start = time.perf_counter()
-    truth = trace_reference(function, scene, settings["truth"])
-    truth_s = time.perf_counter() - start
+    truth_s, truth = once(trace_reference, function, scene, settings["truth"])
     log(f"  truth {settings['truth']}: {truth_s:.1f} s")
     ref_rows = []
     for p in settings["reference"]:
-        start = time.perf_counter()
-        image = trace_reference(function, scene, p)
-        took = time.perf_counter() - start
+        took, image = once(trace_reference, function, scene, p)
         ref_rows.append(
             dict(
                 function=function,
@@ -493,24 +472,10 @@ def run_kind(kind: str, config: dict, log=print) -> dict:
 # --------------------------------------------------------------------------- report
 
 
-def git_commit() -> str | None:
-    try:
-        done = subprocess.run(
-            ["git", "-C", str(ROOT), "describe", "--always", "--dirty"],
-            capture_output=True,
-            text=True,
-            check=True,
-        )
-    except (OSError, subprocess.CalledProcessError):
-        return None
-    return done.stdout.strip() or None
-
-
-def device_text() -> str:
-    device = jax.devices()[0]
-    if device.platform == "cpu":
-        return f"cpu, {os.cpu_count()} cores"
-    return f"{device.platform}, {device.device_kind}"
+def device_text(env: dict) -> str:
+    if env["backend"] == "cpu":
+        return f"cpu, {env['cpus']} cores"
+    return f"{env['backend']}, {env['device_kind']}"
 
 
 def reference_time_at(error: float, ref_rows: list[dict]) -> str:
@@ -774,21 +739,20 @@ def main(argv=None) -> None:
             parser.error(f"no table at {args.table}")
         write_report(table, args.output)
         return
-    kinds = [k for k in args.kinds.split(",") if k]
-    unknown = [k for k in kinds if k not in KINDS]
-    if unknown:
-        parser.error(f"unknown kinds {unknown}; known: {list(KINDS)}")
+    kinds = pick(parser, args.kinds, KINDS, "kinds")
     config = CONFIGS["quick" if args.quick else "full"]
     previous = _existing(args.table)
+    env = environment()
     table = dict(
         schema=1,
         generated=time.strftime("%Y-%m-%d %H:%M"),
-        commit=git_commit(),
-        device=device_text(),
+        commit=env["commit"],
+        device=device_text(env),
         dtype="float32",
         metric=METRIC,
-        jax=jax.__version__,
+        jax=env["jax"],
         quick=args.quick,
+        environment=env,
         kinds={},
     )
     if previous is not None and previous.get("quick", False) == args.quick:

@@ -30,12 +30,12 @@ photons (relative L1 error, no blur):
 
 Time: median of repeated calls of the public function after a first one (which
 compiles), ``jax.block_until_ready`` on the image; compile time = first call minus the
-median. Writes ``benchmarks/results/caustic_maps.md`` (tables, and the raw rows as JSON
-in an HTML comment at its end) and ``caustic_maps_error_vs_time.png``.
+median. Writes ``benchmarks/results/caustic_maps.md`` (tables), ``caustic_maps.json``
+(the environment and the raw rows) and ``caustic_maps_error_vs_time.png``.
 
     python benchmarks/bench_caustic_maps.py                # full run (~20 min on 2 cores)
     python benchmarks/bench_caustic_maps.py --quick        # small grids, to check it runs
-    python benchmarks/bench_caustic_maps.py --report-only  # redo .md and .png from the .md
+    python benchmarks/bench_caustic_maps.py --report-only  # redo .md and .png from the .json
 """
 
 from __future__ import annotations
@@ -43,11 +43,10 @@ from __future__ import annotations
 import argparse
 import functools
 import inspect
-import json
 import math
 import os
-import statistics
 import subprocess
+import sys
 import time
 from pathlib import Path
 
@@ -57,13 +56,24 @@ import numpy as np
 import jaxcaustics as jc
 from jaxcaustics import reference
 
+sys.path.insert(0, str(Path(__file__).parent))  # the harness beside this script
+from harness import (  # noqa: E402
+    Timing,
+    environment,
+    once,
+    pick,
+    read_results,
+    timed,
+    write_results,
+)
+
 # relative L1 without a blur (jc.image_error at blur 0)
 unblurred_error = functools.partial(jc.image_error, blur=0.0)
 
 RESULTS = Path(__file__).parent / "results"
-MD_NAME = "caustic_maps.md"
+NAME = "caustic_maps"
+MD_NAME = f"{NAME}.md"
 PNG_NAME = "caustic_maps_error_vs_time.png"
-JSON_TAG = "results-json"
 PIXELS = 128
 EXTENT = (-1.0, 1.0, -1.0, 1.0)  # the receiver, metres
 ZENITH_DEG = 10.0
@@ -160,40 +170,35 @@ SCENES = {
 # ---------------------------------------------------------------------------- measures
 
 
-def run_once(fn):
-    start = time.perf_counter()
-    result = fn()
-    jax.block_until_ready(result.image)
-    return time.perf_counter() - start, result
+def timing(fn, repeats, first=None):
+    """`harness.timed` at this benchmark's budgets: at least 3 calls after the first,
+    fewer than `repeats` once they took over 10 s, and 2 once over 20 s (the exact ray
+    tracers on a CPU)."""
+    return timed(fn, repeats=repeats, budget_s=10.0, long_s=20.0, first=first)
 
 
-def timed(fn, repeats=5, first=None, budget_s=10.0, long_s=20.0):
-    """``(first call s, median s, runs)``: `fn` returns a result with an ``.image``; a
-    first call (compilation; skipped if its time `first` is given), then up to `repeats`
-    timed calls: at least 3, fewer than `repeats` once they take over `budget_s`, and 2
-    once they take over `long_s` (the exact ray tracers on a CPU)."""
-    if first is None:
-        first = run_once(fn)[0]
-    times = []
-    while len(times) < repeats:
-        times.append(run_once(fn)[0])
-        if (len(times) >= 3 and sum(times) > budget_s) or (len(times) >= 2 and sum(times) > long_s):
-            break
-    return first, statistics.median(times), len(times)
-
-
-def _row(method, photons, error, first, median, runs, generated, splatted, **knobs):
+def _row(method, photons, error, t, generated, splatted, **knobs):
+    """A table row; `t` a `harness.Timing`."""
     return dict(
         method=method,
         photons=photons,
         generated=int(generated),
         splatted=int(splatted),
         error=error,
-        ms=1e3 * median,
-        compile_s=first - median,
-        runs=runs,
+        ms=1e3 * t.median,
+        compile_s=t.compile_s,
+        runs=t.runs,
         **knobs,
     )
+
+
+def _map_row(method, n, t, truth, **knobs):
+    """The row of a caustic map (`t.out`: its result), printed."""
+    stats = t.out.stats
+    error = unblurred_error(t.out.image, truth)
+    row = _row(method, n, error, t, stats["generated"], stats["splatted"], **knobs)
+    print("  ", row, flush=True)
+    return row
 
 
 def default_of(fn, name):
@@ -202,32 +207,21 @@ def default_of(fn, name):
 
 def reference_rows(scene, truth_p, checks):
     """The truth (reference at `truth_p` photons per axis) and rows for the reference at
-    `checks` photons per axis (ascending) against it."""
-    start = time.perf_counter()
-    truth, stats = reference.trace_mesh(scene, truth_p, return_stats=True)
-    truth_s = time.perf_counter() - start
-    print(f"  reference {truth_p}^2: {truth_s:.1f} s", flush=True)
+    `checks` photons per axis (ascending) against it, each timed once."""
+
+    def trace(p):
+        took, (image, stats) = once(lambda: reference.trace_mesh(scene, p, return_stats=True))
+        return image, stats, Timing(took, [took], image)  # one call, nothing to compile
+
+    truth, stats, truth_t = trace(truth_p)
+    print(f"  reference {truth_p}^2: {truth_t.first:.1f} s", flush=True)
     rows = []
     for p in checks:
-        start = time.perf_counter()
-        image, st = reference.trace_mesh(scene, p, return_stats=True)
-        took = time.perf_counter() - start
-        rows.append(
-            _row(
-                REFERENCE,
-                p,
-                unblurred_error(image, truth),
-                took,
-                took,
-                1,
-                st["emitted"],
-                st["on_receiver"],
-            )
-        )
+        image, st, t = trace(p)
+        error = unblurred_error(image, truth)
+        rows.append(_row(REFERENCE, p, error, t, st["emitted"], st["on_receiver"]))
         print("  ", rows[-1], flush=True)
-    truth_row = _row(
-        REFERENCE, truth_p, None, truth_s, truth_s, 1, stats["emitted"], stats["on_receiver"]
-    )
+    truth_row = _row(REFERENCE, truth_p, None, truth_t, stats["emitted"], stats["on_receiver"])
     return truth, rows, truth_row
 
 
@@ -237,9 +231,11 @@ def dense_rows(scene, truth, grids, map_resolution, repeats):
     for n in grids:
         tried = {}  # factor -> (error, first call s, result)
 
-        def attempt(f, n=n, tried=tried):
-            sigma = f * map_resolution / n
-            first, result = run_once(lambda: jc.caustics_mapping(scene, photons=n, sigma=sigma))
+        def call(f, n=n):
+            return jc.caustics_mapping(scene, photons=n, sigma=f * map_resolution / n)
+
+        def attempt(f, tried=tried, call=call):
+            first, result = once(call, f)
             tried[f] = (unblurred_error(result.image, truth), first, result)
 
         for f in SIGMA_FACTORS:
@@ -247,31 +243,13 @@ def dense_rows(scene, truth, grids, map_resolution, repeats):
         if min(tried, key=lambda f: tried[f][0]) == SIGMA_FACTORS[0]:
             attempt(SIGMA_FACTORS[0] / 2)
         best = min(tried, key=lambda f: tried[f][0])
-        error, first_s, result = tried[best]
         sigma = best * map_resolution / n
-        first, median, runs = timed(
-            lambda n=n, sigma=sigma: jc.caustics_mapping(scene, photons=n, sigma=sigma),
-            repeats,
-            first=first_s,
-        )
+        t = timing(lambda call=call, best=best: call(best), repeats, first=tried[best][1])
         searched = ", ".join(
             f"{f * map_resolution / n:g}: {tried[f][0]:.4f}" for f in sorted(tried)
         )
-        rows.append(
-            _row(
-                DENSE,
-                n,
-                error,
-                first,
-                median,
-                runs,
-                result.stats["generated"],
-                result.stats["splatted"],
-                sigma=sigma,
-                knobs=f"sigma {sigma:g} (errors at sigma {searched})",
-            )
-        )
-        print("  ", rows[-1], flush=True)
+        knobs = f"sigma {sigma:g} (errors at sigma {searched})"
+        rows.append(_map_row(DENSE, n, t, truth, sigma=sigma, knobs=knobs))
     return rows
 
 
@@ -283,23 +261,8 @@ def dense_exact_rows(scene, truth, grids, sigmas, repeats):
         def call(n=n, sigma=sigma):
             return jc.caustics_mapping(scene, photons=n, sigma=sigma, intersection="exact")
 
-        first, result = run_once(call)
-        first, median, runs = timed(call, repeats, first=first)
-        rows.append(
-            _row(
-                DENSE_EXACT,
-                n,
-                unblurred_error(result.image, truth),
-                first,
-                median,
-                runs,
-                result.stats["generated"],
-                result.stats["splatted"],
-                sigma=sigma,
-                knobs=f"sigma {sigma:g}",
-            )
-        )
-        print("  ", rows[-1], flush=True)
+        t = timing(call, repeats)
+        rows.append(_map_row(DENSE_EXACT, n, t, truth, sigma=sigma, knobs=f"sigma {sigma:g}"))
     return rows
 
 
@@ -313,36 +276,18 @@ def adaptive_rows(scene, truth, grids, metric, check_from, sigmas, repeats):
                 scene, photons=n, metric=metric, check_from=check_from, sigma=sigma
             )
 
-        first, result = run_once(call)
-        first, median, runs = timed(call, repeats, first=first)
+        t = timing(call, repeats)
         knobs = f"sigma {sigma:g}" + (f", check from {check_from}^2" if metric == "error" else "")
-        rows.append(
-            _row(
-                ADAPTIVE[metric],
-                n,
-                unblurred_error(result.image, truth),
-                first,
-                median,
-                runs,
-                result.stats["generated"],
-                result.stats["splatted"],
-                sigma=sigma,
-                knobs=knobs + f", {result.stats['batches']} kernel calls",
-            )
-        )
-        print("  ", rows[-1], flush=True)
+        knobs += f", {t.out.stats['batches']} kernel calls"
+        rows.append(_map_row(ADAPTIVE[metric], n, t, truth, sigma=sigma, knobs=knobs))
     return rows
 
 
 def triangle_rows(scene, truth, grids, repeats):
     rows = []
     for n in grids:
-
-        def call(n=n):
-            return jc.caustic_triangles(scene, photons=n)
-
-        first, result = run_once(call)
-        first, median, runs = timed(call, repeats, first=first)
+        t = timing(lambda n=n: jc.caustic_triangles(scene, photons=n), repeats)
+        result = t.out
         valid = int(np.asarray(result.photons.valid).any(axis=0).sum())
         missed = float(np.asarray(result.missed_flux_fraction)[0])
         rows.append(
@@ -350,9 +295,7 @@ def triangle_rows(scene, truth, grids, repeats):
                 TRIANGLES,
                 n,
                 unblurred_error(result.image, truth),
-                first,
-                median,
-                runs,
+                t,
                 n * n,
                 valid,
                 knobs=f"exact reconstruction, window auto (missed flux {missed:.1e})",
@@ -615,7 +558,7 @@ NOTES = """
 """
 
 
-def write_report(meta, results, out: Path) -> str:
+def write_report(meta, results, out: Path, env=None) -> str:
     text = [
         "# Caustic maps benchmark: dense and adaptive caustic maps against caustic triangles\n\n",
         f"Generated by `benchmarks/bench_caustic_maps.py{' --quick' if meta['quick'] else ''}`."
@@ -678,22 +621,11 @@ def write_report(meta, results, out: Path) -> str:
     text += [
         NOTES,
         "\n![Error against time](caustic_maps_error_vs_time.png)\n",
-        f"\n<!-- {JSON_TAG}\n",
-        json.dumps(dict(meta=meta, results=results)),
-        "\n-->\n",
     ]
     report = "".join(text)
-    (out / MD_NAME).write_text(report)
+    write_results(NAME, results, report, extra=dict(meta=meta), out=out, env=env)
     plot(results, out / PNG_NAME)
     return report
-
-
-def read_json(path: Path):
-    text = path.read_text()
-    start = text.index(f"<!-- {JSON_TAG}\n") + len(f"<!-- {JSON_TAG}\n")
-    end = text.index("\n-->", start)
-    data = json.loads(text[start:end])
-    return data["meta"], data["results"]
 
 
 def uptime() -> str:
@@ -701,20 +633,6 @@ def uptime() -> str:
         return subprocess.run(["uptime"], capture_output=True, text=True, check=True).stdout.strip()
     except (OSError, subprocess.CalledProcessError):
         return "load average: " + ", ".join(f"{x:.2f}" for x in os.getloadavg())
-
-
-def git_commit() -> str | None:
-    """The repository's commit (``--dirty`` when the tree has changes), if git can tell."""
-    try:
-        done = subprocess.run(
-            ["git", "-C", str(Path(__file__).parent), "describe", "--always", "--dirty"],
-            capture_output=True,
-            text=True,
-            check=True,
-        )
-    except (OSError, subprocess.CalledProcessError):
-        return None
-    return done.stdout.strip() or None
 
 
 def main(argv=None) -> None:
@@ -725,26 +643,23 @@ def main(argv=None) -> None:
     parser.add_argument(
         "--report-only",
         action="store_true",
-        help=f"rewrite {MD_NAME} and the plot from the rows stored in {MD_NAME}",
+        help=f"rewrite {MD_NAME} and the plot from the rows stored in {NAME}.json",
     )
     args = parser.parse_args(argv)
     args.out.mkdir(parents=True, exist_ok=True)
     if args.report_only:
-        meta, results = read_json(args.out / MD_NAME)
-        print(write_report(meta, results, args.out))
+        data = read_results(NAME, args.out)
+        if data is None:
+            parser.error(f"no {NAME}.json in {args.out}")
+        print(write_report(data["meta"], data["rows"], args.out, data["environment"]))
         return
-    names = [s for s in args.scenes.split(",") if s]
-    unknown = [s for s in names if s not in SCENES]
-    if unknown:
-        parser.error(f"unknown scenes {unknown}; known: {list(SCENES)}")
+    names = pick(parser, args.scenes, SCENES, "scenes")
     config = CONFIGS["quick" if args.quick else "full"]
-    meta = dict(
+    env = environment()
+    meta = {k: env[k] for k in ("device", "jax", "cpus", "commit")}
+    meta.update(
         quick=args.quick,
-        device=str(jax.devices()[0]),
-        jax=jax.__version__,
-        cpus=os.cpu_count(),
         uptime_before=uptime(),
-        commit=git_commit(),
         map_resolution=2 * PIXELS,
         iterations=default_of(jc.caustics_mapping, "iterations"),
         discard=default_of(jc.adaptive_caustic_map, "discard"),
@@ -755,7 +670,7 @@ def main(argv=None) -> None:
     results = [run_scene(name, config) for name in names]
     meta["elapsed_s"] = time.perf_counter() - start
     meta["uptime_after"] = uptime()
-    print(write_report(meta, results, args.out))
+    print(write_report(meta, results, args.out, env))
     print(f"wrote {args.out / MD_NAME} and {PNG_NAME}")
 
 

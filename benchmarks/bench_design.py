@@ -13,8 +13,9 @@ final loss, and the error of the design, relative L2 between unit-mean images
 (`LensDesign.predicted`, caustic triangles). The default row also measures the
 reference's noise floor (3072^2 against 4096^2 photons).
 
-Writes ``benchmarks/results/design.md`` (table; the raw numbers as JSON in a comment at
-its end) and ``design.png`` (error against time; the default run's loss history).
+Writes ``benchmarks/results/design.md`` (table), ``design.json`` (the environment and
+the raw numbers, read back by ``--rows`` and ``--report-only``) and ``design.png`` (error
+against time; the default run's loss history).
 
     python benchmarks/bench_design.py                  # all rows (~6 min on 2 idle cores)
     python benchmarks/bench_design.py --rows lm,lbfgs  # rerun some rows, keep the others
@@ -34,9 +35,12 @@ import sys
 import time
 from pathlib import Path
 
+sys.path.insert(0, str(Path(__file__).parent))  # the harness beside this script
+from harness import git_commit, once, pick, read_results, write_results  # noqa: E402
+
 RESULTS = Path(__file__).parent / "results"
 PHOTONS, NOISE_PHOTONS = 3072, 4096  # reference photons per axis; the noise check's
-SETTING = dict(width=2.0, height=2.0, thickness=0.5, throw=7.0, ior=1.5)
+SETTING = dict(width=2.0, height=2.0, thickness=0.5, screen_distance=7.0, ior=1.5)
 # name -> (label, design_lens arguments beyond SETTING)
 ROWS = {
     "lm": ("LM, default", {}),
@@ -49,7 +53,6 @@ ROWS = {
     "relief": ("LM, relief 0.02 (Fresnel)", dict(max_relief=0.02)),
 }
 QUICK = dict(levels=(32,), max_steps=3)
-MARKER = "<!-- raw results (read back by --rows):\n"
 MITSUBA = (426.0, 0.27)  # quoted from the issue (200 Adam steps on 2 cores), not measured
 
 
@@ -59,19 +62,6 @@ def target():
     from jaxcaustics.inverse.design import _area_average
 
     return _area_average(data.camera().astype(float), (128, 128))
-
-
-def commit() -> str:
-    """The repository's commit (read-only git), ``+modified`` if jaxcaustics/ differs."""
-    root = Path(__file__).resolve().parent.parent
-
-    def git(*args):
-        return subprocess.run(["git", *args], cwd=root, capture_output=True, text=True)
-
-    head = git("rev-parse", "--short", "HEAD").stdout.strip() or "?"
-    return head + (
-        "+modified" if git("diff", "--quiet", "HEAD", "--", "jaxcaustics").returncode else ""
-    )
 
 
 def result_name(result) -> str:
@@ -105,7 +95,7 @@ def one(name: str, quick: bool) -> dict:
             **SETTING,
             start="poisson",  # this benchmark measures the Poisson start's solvers
             **kwargs,
-            throw_errors=False,
+            throw=False,
             callback=lambda info: stamps.append((info["level"], time.perf_counter() - start)),
         )
     except Exception as err:  # report what happens (e.g. a diverging solver), do not tune
@@ -130,8 +120,7 @@ def one(name: str, quick: bool) -> dict:
             )
         )
     load.append(os.getloadavg()[0])
-    start_ref = time.perf_counter()
-    image = reference.trace_lens(d.scene, PHOTONS)
+    reference_s, image = once(reference.trace_lens, d.scene, PHOTONS)
     row.update(
         levels=levels,
         steps=sum(lev["steps"] for lev in levels),
@@ -147,14 +136,14 @@ def one(name: str, quick: bool) -> dict:
         error_predicted=relative_l2(d.predicted, t),
         relief=d.relief,
         finite=bool(np.all(np.isfinite(d.heights))),
-        reference_s=time.perf_counter() - start_ref,
+        reference_s=reference_s,
         load=load,
         history=d.loss_history,
         stamps=[s for _, s in stamps],
         jax=jax.__version__,
         device=str(jax.devices()[0]),
         date=datetime.date.today().isoformat(),
-        commit=commit(),
+        commit=git_commit(),
     )
     if name == "lm" and not quick:  # the reference's own noise at PHOTONS per axis
         finer = reference.trace_lens(d.scene, NOISE_PHOTONS)
@@ -288,7 +277,7 @@ def plot(rows, path):
     plt.close(fig)
 
 
-def report(rows, out: Path, quick: bool, wall: str | None):
+def report(rows, out: Path, quick: bool, wall: str | None, env=None):
     lm = next((r for r in rows if r["name"] == "lm" and "failed" not in r), {})
     date = lm.get("date", datetime.date.today().isoformat())
     old = (out / "design.md").read_text() if (out / "design.md").exists() else ""
@@ -304,7 +293,7 @@ def report(rows, out: Path, quick: bool, wall: str | None):
         " Regenerate: `python benchmarks/bench_design.py`"
         " (`--rows lm,gn` reruns some rows and keeps the others).\n\n",
         "Setting: lens 2 x 2 m, index 1.5, blank 0.5 m thick, screen 7 m past the lens"
-        " (`throw=7.0`), collimated light straight down; target: scikit-image's `camera`"
+        " (`screen_distance=7.0`), collimated light straight down; target: scikit-image's `camera`"
         " area-averaged to 128x128. Each row is one `design_lens` call in a fresh process"
         " (compilation counted every time).\n\n",
         "Columns: `levels`: heights samples per side, coarse to fine; `steps taken`: solver"
@@ -343,27 +332,24 @@ def report(rows, out: Path, quick: bool, wall: str | None):
     if quick:
         text.insert(1, "**Quick check only (one 32^2 level, 3 steps): not results.**\n\n")
     if "\n## Notes" in old and not quick:  # hand-written notes survive a rerun
-        text.append("\n## Notes" + old.split("\n## Notes", 1)[1].split(MARKER, 1)[0].rstrip())
+        text.append("\n## Notes" + old.split("\n## Notes", 1)[1].rstrip())
         text.append("\n")
     raw = [  # the loss history of the default row only (for the plot); 6 digits
         {k: v for k, v in r.items() if r["name"] == "lm" or k not in ("history", "stamps")}
         for r in rows
     ]
     raw = json.loads(json.dumps(raw), parse_float=lambda x: float(f"{float(x):.6g}"))
-    text.append(f"\n{MARKER}{json.dumps(raw)}\n-->\n")
-    (out / "design.md").write_text("".join(text))
+    write_results("design", raw, "".join(text), out=out, env=env)
     plot(rows, out / "design.png")
-    print("".join(text[:-1]))
+    print("".join(text))
 
 
-def previous(path: Path) -> dict:
-    if not path.exists():
-        return {}
-    text = path.read_text()
-    if MARKER not in text:
-        return {}
-    raw = text.split(MARKER, 1)[1].split("\n-->", 1)[0]
-    return {r["name"]: r for r in json.loads(raw)}
+def previous(out: Path) -> tuple[dict, dict | None]:
+    """The rows stored in ``<out>/design.json`` by name, and their run's environment."""
+    data = read_results("design", out)
+    if data is None:
+        return {}, None
+    return {r["name"]: r for r in data["rows"]}, data["environment"]
 
 
 def main(argv=None) -> None:
@@ -380,13 +366,10 @@ def main(argv=None) -> None:
         print("ROW " + json.dumps(one(args.one, args.quick)), flush=True)
         return
     args.out.mkdir(parents=True, exist_ok=True)
-    names = args.rows.split(",") if args.rows else list(ROWS)
-    unknown = set(names) - set(ROWS)
-    if unknown:
-        parser.error(f"unknown rows {sorted(unknown)}; choose from {list(ROWS)}")
-    rows = {} if args.quick else previous(args.out / "design.md")
+    names = pick(parser, args.rows or ",".join(ROWS), ROWS, "rows")
+    rows, env = ({}, None) if args.quick else previous(args.out)
     if args.report_only:
-        report([rows[n] for n in ROWS if n in rows], args.out, False, None)
+        report([rows[n] for n in ROWS if n in rows], args.out, False, None, env)
         return
     start = time.perf_counter()
     for name in names:

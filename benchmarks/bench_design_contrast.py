@@ -8,7 +8,9 @@ counted). The design is exported (`export_lens`), its height map read back from 
 (with the bicubic's boundary mode from its JSON sidecar) and rendered by the NumPy
 reference (`reference.trace_lens`, 2048^2 photons); against the target, both at unit
 mean: relative L2, 1 - SSIM (scikit-image), and the fraction of the flux on pixels where
-the target is below 5% of its mean.
+the target is below 5% of its mean. Writes ``benchmarks/results/design_contrast.md``
+(table), ``design_contrast.json`` (the environment and the raw rows, read back by
+``--rows`` and ``--report-only``) and ``design_contrast.png``.
 
     python benchmarks/bench_design_contrast.py            # all rows (~10 min on 2 cores)
     python benchmarks/bench_design_contrast.py --rows silhouette-transport
@@ -22,30 +24,29 @@ import json
 import subprocess
 import sys
 import tempfile
-import time
 from pathlib import Path
 
+sys.path.insert(0, str(Path(__file__).parent))  # the harness beside this script
+from harness import environment, once, read_results, write_results  # noqa: E402
+
 RESULTS = Path(__file__).parent / "results"
-OUT = RESULTS / "design_contrast.md"
+NAME = "design_contrast"
 PHOTONS = 2048
-SETTING = dict(width=2.0, height=2.0, thickness=0.5, throw=7.0, ior=1.5)
+SETTING = dict(width=2.0, height=2.0, thickness=0.5, screen_distance=7.0, ior=1.5)
 TARGETS = ("camera", "silhouette", "lettering", "dots")
 LIGHTS = {
     "collimated": None,
-    "point": "point",  # 1.5 x the throw above the lens
+    "point": "point",  # 1.5 x the screen distance above the lens
     "tilted": "tilted",  # 20 degrees from vertical
 }
 ROWS = [f"{t}-transport" for t in TARGETS] + [f"{t}-poisson" for t in TARGETS]
 ROWS += ["silhouette-transport-point", "silhouette-transport-tilted"]
-MARKER = "<!-- raw results:\n"
 RENDERS = Path(tempfile.gettempdir()) / "jaxcaustics_design_contrast"  # not committed
 
 
 def target(name: str):
     import numpy as np
-
-    sys.path.insert(0, str(Path(__file__).parent))
-    import targets
+    import targets  # beside this script
 
     if name == "camera":
         from skimage import data
@@ -62,8 +63,8 @@ def light(name: str | None):
     from jaxcaustics import DirectionalLight, PointLight
 
     if name == "point":
-        top = SETTING["throw"] + SETTING["thickness"]
-        return PointLight(np.array([0.0, 0.0, top + 1.5 * SETTING["throw"]]), 1.0)
+        top = SETTING["screen_distance"] + SETTING["thickness"]
+        return PointLight(np.array([0.0, 0.0, top + 1.5 * SETTING["screen_distance"]]), 1.0)
     if name == "tilted":
         return DirectionalLight.from_angles(20.0)
     return None
@@ -97,11 +98,11 @@ def one(row: str) -> dict:
     name, start = parts[0], parts[1]
     light_name = parts[2] if len(parts) > 2 else None
     goal = target(name)
-    start_t = time.perf_counter()
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
-        d = design_lens(goal, **SETTING, light=light(light_name), start=start, throw_errors=False)
-    total = time.perf_counter() - start_t
+        total, d = once(
+            lambda: design_lens(goal, **SETTING, light=light(light_name), start=start, throw=False)
+        )
     with tempfile.TemporaryDirectory() as tmp:
         paths = export_lens(d.scene, tmp, formats=("stl",))
         z_mm = read_exr(paths["height_exr"]).astype(float)
@@ -112,11 +113,10 @@ def one(row: str) -> dict:
         d.scene.light,
         d.scene.receiver,
         SETTING["thickness"],
-        SETTING["throw"],
+        SETTING["screen_distance"],
         ior=SETTING["ior"],
     )
-    t0 = time.perf_counter()
-    image = trace_lens(exported, PHOTONS)
+    reference_s, image = once(trace_lens, exported, PHOTONS)
     levels = d.levels
     firsts = [lev.get("first_step_seconds", float("nan")) for lev in levels]
     compile_s = sum(s for s in firsts if s == s)  # the first call of each compiled solve
@@ -134,7 +134,7 @@ def one(row: str) -> dict:
         predicted=d.predicted_error,
         predicted_dark=d.dark_flux,
         reference=judge(image, goal),
-        reference_s=time.perf_counter() - t0,
+        reference_s=reference_s,
         warnings=[str(w.message)[:160] for w in caught if "design_lens" in str(w.message)],
         jax=jax.__version__,
     )
@@ -144,7 +144,7 @@ def report(rows: dict) -> str:
     lines = [
         "# Lens design for high-contrast targets (transport start against the Poisson start)",
         "",
-        "Mitsuba 3 tutorial setting (lens 2 x 2 m, index 1.5, blank 0.5 m, throw 7 m), "
+        "Mitsuba 3 tutorial setting (lens 2 x 2 m, index 1.5, blank 0.5 m, screen 7 m away), "
         "128 x 128 targets, `design_lens` defaults but `start` (and the light), float32, "
         "2 CPU cores, one fresh process per row (compilation counted in `total s`; "
         "`transport s`: the transport, its compilation included; `first steps s`: the "
@@ -175,8 +175,7 @@ def report(rows: dict) -> str:
             f"{r['predicted']:.3f} | {ref['l2']:.3f} | {ref['ssim']:.3f} | "
             f"{100 * ref['dark']:.2f}% | {'yes' if r['warnings'] else 'no'} |"
         )
-    lines += ["", "![targets and reference renders](design_contrast.png)", ""]
-    lines.append(MARKER + json.dumps(rows, indent=1) + "\n-->")
+    lines += ["", "![targets and reference renders](design_contrast.png)"]
     return "\n".join(lines) + "\n"
 
 
@@ -208,15 +207,6 @@ def figure(rows: dict) -> None:
     plt.close(fig)
 
 
-def previous() -> dict:
-    if not OUT.exists():
-        return {}
-    text = OUT.read_text()
-    if MARKER not in text:
-        return {}
-    return json.loads(text.split(MARKER, 1)[1].rsplit("-->", 1)[0])
-
-
 def main(argv=None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--rows", default=",".join(ROWS))
@@ -226,7 +216,9 @@ def main(argv=None) -> None:
     if args.one:
         print(json.dumps(one(args.one)))
         return
-    rows = previous()
+    stored = read_results(NAME) or {}
+    rows = stored.get("rows", {})
+    env = stored.get("environment") if args.report_only else environment()
     if not args.report_only:
         for row in args.rows.split(","):
             proc = subprocess.run(
@@ -238,8 +230,8 @@ def main(argv=None) -> None:
             rows[row] = json.loads(proc.stdout.strip().splitlines()[-1])
             r = rows[row]
             print(row, f"{r['total_s']:.1f} s", r["reference"], flush=True)
-            OUT.write_text(report(rows))
-    OUT.write_text(report(rows))
+            write_results(NAME, rows, report(rows), env=env)
+    write_results(NAME, rows, report(rows), env=env)
     figure(rows)
 
 

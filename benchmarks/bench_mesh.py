@@ -14,7 +14,7 @@ defaults (257^2 photons, exact reconstruction, float32):
    time at 256^2 .. 1024^2 photons with its own error;
 3. larger meshes (icosphere 6: 81,920 faces; a UV sphere of 100,000+ faces): time.
 
-Writes ``benchmarks/results/mesh.md``.
+Writes ``benchmarks/results/mesh.md`` and ``mesh.json`` (the environment and the raw rows).
 
     python benchmarks/bench_mesh.py        # about 5 minutes on 2 cores
 """
@@ -22,10 +22,8 @@ Writes ``benchmarks/results/mesh.md``.
 from __future__ import annotations
 
 import sys
-import time
 from pathlib import Path
 
-import jax
 import numpy as np
 import trimesh
 
@@ -34,9 +32,7 @@ from jaxcaustics import reference
 from jaxcaustics.trace import intersect as _intersect
 
 sys.path.insert(0, str(Path(__file__).parent))  # the harness beside this script
-from harness import timed  # noqa: E402
-
-OUT = Path(__file__).parent / "results" / "mesh.md"
+from harness import environment, once, timed, write_results  # noqa: E402
 
 
 def ball(mesh: trimesh.Trimesh, pixels: int = 128) -> jc.MeshScene:
@@ -52,18 +48,19 @@ def ball(mesh: trimesh.Trimesh, pixels: int = 128) -> jc.MeshScene:
 
 def timed_render(fn, repeats: int = 5, budget_s: float = 30.0):
     """(compile seconds: the first call less the median, median seconds, the image), by
-    the benchmarks' `harness.timed` (the image from one more call)."""
-    first, median = timed(fn, repeats=repeats, budget_s=budget_s)
-    return first - median, median, np.asarray(fn())
+    the benchmarks' `harness.timed`."""
+    t = timed(fn, repeats=repeats, budget_s=budget_s)
+    return t.compile_s, t.median, np.asarray(t.out)
 
 
 def main() -> None:
+    env = environment()
     lines = [
         "# Mesh tracing: bounding volume hierarchy, brute force, reference",
         "",
         "`python benchmarks/bench_mesh.py`; see its docstring for the setting. "
-        f"Device: `{jax.devices()[0]}`; scene float32; 2 CPU cores; "
-        f"run {time.strftime('%Y-%m-%d %H:%M')}.",
+        f"Device: `{env['device']}`; scene float32; {env['cpus']} CPU cores; "
+        f"run {env['date'].replace('T', ' ')[:16]}.",
         "",
     ]
     scene = ball(trimesh.creation.icosphere(subdivisions=5, radius=0.3))
@@ -99,17 +96,16 @@ def main() -> None:
     ]
     reference_runs = []
     for n in (256, 512, 1024):
-        start = time.perf_counter()
-        image = reference.trace_mesh(scene, photons_per_axis=n)
-        seconds = time.perf_counter() - start
-        reference_runs.append((jc.image_error(image, truth), seconds))
-        lines.append(f"| {n} | {reference_runs[-1][0]:.4f} | {seconds:.2f} |")
+        seconds, image = once(lambda n=n: reference.trace_mesh(scene, photons_per_axis=n))
+        error = jc.image_error(image, truth)
+        reference_runs.append(dict(photons_per_axis=n, error=error, s=seconds))
+        lines.append(f"| {n} | {error:.4f} | {seconds:.2f} |")
     tree_error = rows[0][3]
-    as_good = [seconds for error, seconds in reference_runs if error <= tree_error]
+    as_good = [r["s"] for r in reference_runs if r["error"] <= tree_error]
     if as_good:
         lines += ["", f"The reference is as accurate as the tree's render in {min(as_good):.2f} s."]
     else:
-        error, seconds = reference_runs[-1]
+        error, seconds = reference_runs[-1]["error"], reference_runs[-1]["s"]
         lines += [
             "",
             f"No reference run is as accurate as the tree's render (error {tree_error:.4f}): "
@@ -127,16 +123,25 @@ def main() -> None:
         "icosphere 6": trimesh.creation.icosphere(subdivisions=6, radius=0.3),
         "UV sphere 225 x 225": trimesh.creation.uv_sphere(radius=0.3, count=(225, 225)),
     }
+    larger = []
     for name, mesh in meshes.items():
         big = ball(mesh)
         compile_s, seconds, image = timed_render(
             lambda big=big: jc.render(big, "triangles"), repeats=3
         )
         flux = float(image.sum() * (2.0 / 128) ** 2)
+        row = dict(mesh=name, faces=len(mesh.faces), compile_s=compile_s, s=seconds, flux=flux)
+        larger.append(row)
         lines.append(
             f"| {name} | {len(mesh.faces)} | {compile_s:.1f} | {seconds:.3f} | {flux:.4f} |"
         )
-    OUT.write_text("\n".join(lines) + "\n")
+    raw = dict(
+        ball=[dict(search=n, compile_s=c, s=t, error=e) for n, c, t, e in rows],
+        difference=difference,
+        reference=reference_runs,
+        larger=larger,
+    )
+    write_results("mesh", raw, "\n".join(lines) + "\n", env=env)
     print("\n".join(lines))
 
 

@@ -20,6 +20,9 @@ degrees off vertical, azimuth 20) with its relief scaled until rays cross, recov
 with the start alone (``fold_fit=False``) and with the fold fit (``fold_fit=True``,
 `jaxcaustics.inverse.water_refine`), both judged as above.
 
+Writes ``benchmarks/results/recover.md`` and ``recover.json`` (the environment and the
+raw rows).
+
     python benchmarks/bench_recover.py        # about 20 minutes on 2 cores
 """
 
@@ -30,8 +33,9 @@ import subprocess
 import sys
 from pathlib import Path
 
-RESULTS = Path(__file__).parent / "results"
-OUT = RESULTS / "recover.md"
+sys.path.insert(0, str(Path(__file__).parent))  # the harness beside this script
+from harness import write_results  # noqa: E402
+
 # (zenith, amplitude scale, photo: blurred and noisy)
 CASES = tuple(
     (z, a, photo) for photo in (False, True) for z, a in ((0.0, 1.0), (30.0, 1.0), (80.0, 0.25))
@@ -138,7 +142,7 @@ print(json.dumps(rows))
 """
 
 
-def fold_lines() -> list[str]:
+def fold_lines() -> tuple[list[str], list[dict]]:
     out = subprocess.run(
         [sys.executable, "-c", FOLDS], check=True, capture_output=True, text=True
     ).stdout
@@ -162,10 +166,10 @@ def fold_lines() -> list[str]:
             f" {a['height_error']:.3f}, {a['caustic_error']:.4f} | {a['seconds']:.1f} |"
             f" {b['height_error']:.3f}, {b['caustic_error']:.4f} | {b['seconds']:.1f} |"
         )
-    return lines
+    return lines, rows
 
 
-def video_lines() -> list[str]:
+def video_lines() -> tuple[list[str], dict]:
     out = subprocess.run(
         [sys.executable, "-c", VIDEO], check=True, capture_output=True, text=True
     ).stdout
@@ -188,7 +192,7 @@ def video_lines() -> list[str]:
         zip(v["height_error"], v["misfit"], v["warm"], v["seconds"], strict=True)
     ):
         lines.append(f"| {k} | {e:.4f} | {m:.4f} | {'yes' if w else 'no'} | {t:.2f} |")
-    return lines
+    return lines, v
 
 
 def main() -> None:
@@ -220,10 +224,11 @@ def main() -> None:
             f" {r['height_error']:.4f} |"
             f" {r['caustic_error']:.4f} | {r['seconds']:.1f} | {stages} |"
         )
-    lines += fold_lines()
-    lines += video_lines()
-    OUT.write_text("\n".join(lines) + "\n")
-    print(f"wrote {OUT}")
+    folds, fold_rows = fold_lines()
+    video, frames = video_lines()
+    raw = dict(seas=rows, folds=fold_rows, video=frames)
+    text = "\n".join(lines + folds + video) + "\n"
+    print(f"wrote {write_results('recover', raw, text)}")
 
 
 if __name__ == "__main__":

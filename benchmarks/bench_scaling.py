@@ -11,7 +11,7 @@ start-up) and ``JAX_PLATFORMS=cpu``; it times four sharded workloads, float32:
   `devices` argument);
 - ``CSL fits``: `map_sharded` over the caustic-spot-light fits of 8 light directions
   (on a cone of 40 degrees about straight down; glass sphere, 64^2 rays, 4 lights);
-- ``design variants``: `design_lens_variants` over 8 throws (32^2 target, one 32^2
+- ``design variants``: `design_lens_variants` over 8 screen distances (32^2 target, one 32^2
   level, 10 Levenberg-Marquardt steps; the predicted caustics, 65^2 photons, on the
   host one after the other).
 
@@ -23,8 +23,8 @@ devices, and more devices only add overhead (and compilation: with ``per_device=
 a single-device program is compiled for every device). The load average before and
 after each process is recorded (other work on the machine slows every row).
 
-Writes ``benchmarks/results/scaling.md`` (table; the raw numbers as JSON in a comment at
-its end) and ``scaling.png`` (speed-up against devices).
+Writes ``benchmarks/results/scaling.md`` (table), ``scaling.json`` (the environment and
+the raw numbers) and ``scaling.png`` (speed-up against devices).
 
     python benchmarks/bench_scaling.py                # 1, 2, 4, 8 devices (~8 min on 2 cores)
     python benchmarks/bench_scaling.py --devices 1,2  # some device counts
@@ -38,11 +38,13 @@ import datetime
 import json
 import os
 import platform
-import statistics
 import subprocess
 import sys
 import time
 from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).parent))  # the harness beside this script
+from harness import timed, write_results  # noqa: E402
 
 RESULTS = Path(__file__).parent / "results"
 WORKLOADS = ("water batch", "photon bands", "CSL fits", "design variants")
@@ -54,27 +56,17 @@ QUICK = dict(
     water=4, water_n=16, photons=65, lens_n=16, screen=32, csl=2, rays=16,
     throws=2, target=8, steps=2, repeats=1,
 )  # fmt: skip
-MARKER = "<!-- raw results:\n"
 
 
 # --------------------------------------------------------------------------- worker
 
 
 def _timed(fn, repeats: int) -> dict:
-    import jax
-
-    t0 = time.perf_counter()
     try:
-        jax.block_until_ready(fn())
+        t = timed(fn, repeats=repeats)
     except Exception as err:  # a failing workload is reported, the others still run
         return {"skipped": f"failed: {type(err).__name__}: {str(err).splitlines()[0][:120]}"}
-    first = time.perf_counter() - t0
-    times = []
-    for _ in range(repeats):
-        t0 = time.perf_counter()
-        jax.block_until_ready(fn())
-        times.append(time.perf_counter() - t0)
-    return {"first": first, "median": statistics.median(times), "times": times}
+    return {"first": t.first, "median": t.median, "times": t.times}
 
 
 def worker(n_devices: int, size: dict) -> dict:
@@ -171,7 +163,7 @@ def worker(n_devices: int, size: dict) -> dict:
         predict_photons=2 * t + 1,
     )  # fmt: skip
     out["design variants"] = _timed(
-        lambda: [d.heights for d in design_lens_variants(target, throws=throws, **spec)],
+        lambda: [d.heights for d in design_lens_variants(target, screen_distances=throws, **spec)],
         size["repeats"],
     )
     return out
@@ -235,9 +227,8 @@ def report(rows: dict[int, dict], out: Path, quick: bool) -> None:
             lines.append(
                 f"| {name} | {n} | {r['first']:.2f} | {r['median']:.3f} | {speed:.2f} | {load} |"
             )
-    lines += ["", MARKER + json.dumps({str(k): v for k, v in rows.items()}) + "\n-->", ""]
-    out.mkdir(parents=True, exist_ok=True)
-    (out / "scaling.md").write_text("\n".join(lines))
+    raw = {str(k): v for k, v in rows.items()}
+    write_results("scaling", raw, "\n".join(lines) + "\n", dict(quick=quick), out)
 
     import matplotlib
 

@@ -28,27 +28,24 @@ Time: median of repeated calls after a first one (which compiles), with
 ``sum |blur(img) - blur(ref)| / sum blur(ref)``, both blurred by a Gaussian of 1 pixel
 (`scipy.ndimage.gaussian_filter`, ``mode="constant"``); the unblurred error is given too.
 
-Writes ``spot_lights.md`` (tables; the raw rows as JSON in an HTML comment at its end)
-and ``spot_lights_error.png`` to ``--output`` (default ``benchmarks/results/``).
+Writes ``spot_lights.md`` (tables), ``spot_lights.json`` (the environment and the raw
+rows) and ``spot_lights_error.png`` to ``--output`` (default ``benchmarks/results/``).
 
     python benchmarks/bench_spot_lights.py                  # full run (25-60 min, 2 cores)
     python benchmarks/bench_spot_lights.py --quick          # tiny sizes, to check it runs
     python benchmarks/bench_spot_lights.py --parts precompute  # one part; the others are
-                                                            # kept from the existing .md
-    python benchmarks/bench_spot_lights.py --report-only    # redo .md and .png from the .md
+                                                            # kept from the .json
+    python benchmarks/bench_spot_lights.py --report-only    # redo .md and .png from the .json
 
 ``--keep-previous-precompute`` (with ``--parts precompute``) keeps the precomputation
-already in the .md as earlier runs, for comparison (an earlier library version, say).
+already in the .json as earlier runs, for comparison (an earlier library version, say).
 """
 
 from __future__ import annotations
 
 import argparse
-import json
-import os
-import platform
 import statistics
-import subprocess
+import sys
 import time
 from pathlib import Path
 
@@ -56,13 +53,25 @@ import jax
 import numpy as np
 
 import jaxcaustics as jc
-from jaxcaustics import _spot_light_table as table_module
 from jaxcaustics import reference
+from jaxcaustics.methods.spot_lights import table as table_module
+
+sys.path.insert(0, str(Path(__file__).parent))  # the harness beside this script
+from harness import (  # noqa: E402
+    environment,
+    git_commit,
+    load,
+    once,
+    pick,
+    read_results,
+    timed,
+    write_results,
+)
 
 RESULTS = Path(__file__).parent / "results"
-MD_NAME = "spot_lights.md"
+NAME = "spot_lights"
+MD_NAME = f"{NAME}.md"
 PNG_NAME = "spot_lights_error.png"
-JSON_TAG = "results-json"
 PARTS = ("fit", "eval", "error", "precompute")
 # the paper's 1280^2 rays need about 1.5 GB for the fit (`fit_bytes`, float32): over the
 # library's 1 GiB default `memory_limit`, which then refuses them before compiling
@@ -139,29 +148,10 @@ def sphere_scene(shape=(128, 128), extent=EXTENT, dtype=np.float32):
 # ---------------------------------------------------------------------------- timing
 
 
-def load() -> list[float]:
-    return [round(x, 2) for x in os.getloadavg()]
-
-
-def run_once(fn):
-    start = time.perf_counter()
-    out = fn()
-    jax.block_until_ready(out)
-    return time.perf_counter() - start, out
-
-
-def timed(fn, repeats=5, first=None, budget_s=30.0, long_s=120.0):
-    """``(first call s, median s, runs)``: a first call (compilation; skipped if its time
-    `first` is given), then up to `repeats` timed calls: at least 3, fewer once they
-    took over `budget_s`, and 2 once they took over `long_s`."""
-    if first is None:
-        first = run_once(fn)[0]
-    times = []
-    while len(times) < repeats:
-        times.append(run_once(fn)[0])
-        if (len(times) >= 3 and sum(times) > budget_s) or (len(times) >= 2 and sum(times) > long_s):
-            break
-    return first, statistics.median(times), len(times)
+def timing(fn, repeats):
+    """`harness.timed` at this benchmark's budgets: at least 3 calls after the first,
+    fewer than `repeats` once they took over 30 s, and 2 once over 120 s."""
+    return timed(fn, repeats=repeats, budget_s=30.0, long_s=120.0)
 
 
 def _start():
@@ -198,19 +188,19 @@ def part_fit(config):
         def trace_fit(n=n):
             return jc.fit_spot_lights(jc.trace_exit_rays(scene, n), memory_limit=FIT_MEMORY)
 
-        first, (lights, info) = run_once(trace_fit)
-        first, median, runs = timed(trace_fit, config["repeats"], first=first)
-        t_first, t_median, t_runs = timed(trace, config["repeats"])
-        rays = trace()
+        t = timing(trace_fit, config["repeats"])
+        lights, info = t.out
+        traced = timing(trace, config["repeats"])
+        rays = traced.out
         sets[n] = lights
         rows.append(
             dict(
                 rays=n,
-                ms=1e3 * median,
-                compile_s=first - median,
-                runs=runs,
-                trace_ms=1e3 * t_median,
-                trace_compile_s=t_first - t_median,
+                ms=1e3 * t.median,
+                compile_s=t.compile_s,
+                runs=t.runs,
+                trace_ms=1e3 * traced.median,
+                trace_compile_s=traced.compile_s,
                 lights=int(np.sum(np.asarray(lights.active))),
                 slots=len(lights),
                 fraction=float(info.fraction),
@@ -239,17 +229,17 @@ def part_eval(config, lights):
             ("as called", lambda c=chosen: jc.render_spot_lights(c, receiver, samples=1)),
             ("jax.jit", lambda c=chosen, j=jitted: j(c)),
         ):
-            first, median, runs = timed(fn, max(config["repeats"], 5))
-            image = fn()
+            t = timing(fn, max(config["repeats"], 5))
+            image = t.out
             rows.append(
                 dict(
                     lights=label,
                     slots=len(chosen),
                     active=int(np.sum(np.asarray(chosen.active))),
                     mode=mode,
-                    ms=1e3 * median,
-                    compile_s=first - median,
-                    runs=runs,
+                    ms=1e3 * t.median,
+                    compile_s=t.compile_s,
+                    runs=t.runs,
                     dtype=str(image.dtype),
                     finite=bool(np.all(np.isfinite(np.asarray(image)))),
                 )
@@ -274,12 +264,8 @@ def part_error(config):
     start_wall, start_load = _start()
     p = config["error_pixels"]
     scene = sphere_scene((p, p))
-    start = time.perf_counter()
-    truth = reference.trace_ellipsoid(scene, config["truth"])
-    truth_s = time.perf_counter() - start
-    start = time.perf_counter()
-    check = reference.trace_ellipsoid(scene, config["ref_check"])
-    check_s = time.perf_counter() - start
+    truth_s, truth = once(reference.trace_ellipsoid, scene, config["truth"])
+    check_s, check = once(reference.trace_ellipsoid, scene, config["ref_check"])
     ref = dict(
         truth=config["truth"],
         truth_s=truth_s,
@@ -302,13 +288,13 @@ def part_error(config):
         def fit():
             return jc.fit_spot_lights(rays, max_lights=max_lights, energy_fraction=energy_fraction)
 
-        fit_first, fit_median, fit_runs = timed(fit, config["error_repeats"])
+        fitted = timing(fit, config["error_repeats"])
         result = jc.spot_lights(  # the same fit (compiled now) and its rendering
             scene, rays_per_axis=n, max_lights=max_lights, energy_fraction=energy_fraction
         )
         info = result.fit_info[0]
         lights = result.lights[0]
-        r_first, r_median, r_runs = timed(lambda: render(lights), config["error_repeats"])
+        rendered = timing(lambda: render(lights), config["error_repeats"])
         done[key] = dict(
             max_lights=max_lights,
             energy_fraction=energy_fraction,
@@ -317,12 +303,12 @@ def part_error(config):
             discarded=float(info.discarded_energy / info.total_energy),
             error=jc.image_error(result.image, truth),
             error_raw=jc.image_error(result.image, truth, 0),
-            fit_ms=1e3 * fit_median,
-            fit_compile_s=fit_first - fit_median,
-            fit_runs=fit_runs,
-            render_ms=1e3 * r_median,
-            render_compile_s=r_first - r_median,
-            render_runs=r_runs,
+            fit_ms=1e3 * fitted.median,
+            fit_compile_s=fitted.compile_s,
+            fit_runs=fitted.runs,
+            render_ms=1e3 * rendered.median,
+            render_compile_s=rendered.compile_s,
+            render_runs=rendered.runs,
             dtype=str(result.image.dtype),
         )
         print("  error", done[key], flush=True)
@@ -434,18 +420,17 @@ def run_precompute(scene, subdivisions, settings, log=print):
     commit = git_commit()
     with _PhaseClock(log) as clock:
         start_load = load()
-        start = time.perf_counter()
-        table = jc.precompute_spot_lights(
-            scene,
-            subdivisions=subdivisions,
-            rays_per_axis=settings["rays_per_axis"],
-            tracking_steps=settings["tracking_steps"],
-            tracking_rays_per_axis=settings["tracking_rays_per_axis"],
-            progress=False,
-            **settings["fit_knobs"],
+        total, table = once(
+            lambda: jc.precompute_spot_lights(
+                scene,
+                subdivisions=subdivisions,
+                rays_per_axis=settings["rays_per_axis"],
+                tracking_steps=settings["tracking_steps"],
+                tracking_rays_per_axis=settings["tracking_rays_per_axis"],
+                progress=False,
+                **settings["fit_knobs"],
+            )
         )
-        jax.block_until_ready(table)
-        total = time.perf_counter() - start
     v, e, f = directions_count(subdivisions)
     active = np.asarray(table.lights.active)
     return dict(
@@ -920,7 +905,9 @@ NOTES = """
 
 
 def write_report(data, out: Path) -> str:
-    meta, parts = data["meta"], data["parts"]
+    """The report of `data` (``meta``, ``rows``: the parts, ``environment`` when known),
+    written with the data beside it."""
+    meta, parts = data["meta"], data["rows"]
     text = [
         "# Caustic spot lights benchmark (Liu, Dong, Bao & Peng 2008)\n\n",
         f"Generated by `benchmarks/bench_spot_lights.py{' --quick' if meta['quick'] else ''}`."
@@ -938,37 +925,12 @@ def write_report(data, out: Path) -> str:
     for name in PARTS:
         if name in parts:
             text.append(SECTIONS[name](parts[name], meta, parts))
-    text += [
-        NOTES,
-        f"\n<!-- {JSON_TAG}\n",
-        json.dumps(data),
-        "\n-->\n",
-    ]
+    text.append(NOTES)
     report = "".join(text)
-    (out / MD_NAME).write_text(report)
+    write_results(NAME, parts, report, dict(meta=meta), out, data.get("environment"))
     if "error" in parts:
         plot(parts["error"], out / PNG_NAME)
     return report
-
-
-def read_json(path: Path):
-    text = path.read_text()
-    start = text.index(f"<!-- {JSON_TAG}\n") + len(f"<!-- {JSON_TAG}\n")
-    end = text.index("\n-->", start)
-    return json.loads(text[start:end])
-
-
-def git_commit() -> str | None:
-    try:
-        done = subprocess.run(
-            ["git", "-C", str(Path(__file__).parent), "describe", "--always", "--dirty"],
-            capture_output=True,
-            text=True,
-            check=True,
-        )
-    except (OSError, subprocess.CalledProcessError):
-        return None
-    return done.stdout.strip() or None
 
 
 def main(argv=None) -> None:
@@ -979,7 +941,7 @@ def main(argv=None) -> None:
         "--parts",
         default=",".join(PARTS),
         help=f"comma-separated, of {','.join(PARTS)}; parts not run are kept from an"
-        f" existing {MD_NAME} of the same mode",
+        f" existing {NAME}.json of the same mode",
     )
     parser.add_argument(
         "--precompute-limit-min",
@@ -993,64 +955,57 @@ def main(argv=None) -> None:
         action="store_true",
         help="with --parts precompute: keep the existing precompute results as earlier runs",
     )
-    parser.add_argument("--report-only", action="store_true", help=f"rewrite from {MD_NAME}")
+    parser.add_argument("--report-only", action="store_true", help=f"rewrite from {NAME}.json")
     args = parser.parse_args(argv)
     args.out.mkdir(parents=True, exist_ok=True)
     md = args.out / MD_NAME
+    old = read_results(NAME, args.out)
     if args.report_only:
-        data = read_json(md)
-        if "precompute" in data["parts"]:
-            part = redo_estimates(data["parts"]["precompute"])
+        if old is None:
+            parser.error(f"no {NAME}.json in {args.out}")
+        data = old
+        if "precompute" in data["rows"]:
+            part = redo_estimates(data["rows"]["precompute"])
             if "previous" in part:
                 part["previous"] = [redo_estimates(x) for x in part["previous"]]
-            data["parts"]["precompute"] = part
+            data["rows"]["precompute"] = part
         print(write_report(data, args.out))
         return
-    parts = [p for p in args.parts.split(",") if p]
-    unknown = [p for p in parts if p not in PARTS]
-    if unknown:
-        parser.error(f"unknown parts {unknown}; known: {list(PARTS)}")
+    parts = pick(parser, args.parts, PARTS, "parts")
     config = CONFIGS["quick" if args.quick else "full"]
-    meta = dict(
-        quick=args.quick,
-        device=str(jax.devices()[0]),
-        jax=jax.__version__,
-        cpus=os.cpu_count(),
-        machine=platform.machine(),
-        commit=git_commit(),
-        config=config,
-    )
-    data = dict(meta=meta, parts={})
+    env = environment()
+    meta = {k: env[k] for k in ("device", "jax", "cpus", "machine", "commit")}
+    meta.update(quick=args.quick, config=config)
+    data = dict(environment=env, meta=meta, rows={})
     previous = []
-    if set(parts) != set(PARTS) and md.exists():
-        old = read_json(md)
+    if set(parts) != set(PARTS) and old is not None:
         if old["meta"]["quick"] == args.quick:
-            data["parts"] = {k: v for k, v in old["parts"].items() if k not in parts}
-            if args.keep_previous_precompute and "precompute" in old["parts"]:
-                kept = old["parts"]["precompute"]
+            data["rows"] = {k: v for k, v in old["rows"].items() if k not in parts}
+            if args.keep_previous_precompute and "precompute" in old["rows"]:
+                kept = old["rows"]["precompute"]
                 previous = kept.pop("previous", []) + [kept]
     print(f"device: {meta['device']}; load {load()}", flush=True)
     sets = None
     if "fit" in parts:
-        data["parts"]["fit"], sets = part_fit(config)
+        data["rows"]["fit"], sets = part_fit(config)
     elif "eval" in parts:  # the set to render, fitted once (untimed)
         n = config["eval_set_rays"]
         sets = {n: jc.fit_spot_lights(jc.trace_exit_rays(sphere_scene(), n))[0]}
     if "eval" in parts:
-        data["parts"]["eval"] = part_eval(config, sets[config["eval_set_rays"]])
+        data["rows"]["eval"] = part_eval(config, sets[config["eval_set_rays"]])
     if "error" in parts:
-        data["parts"]["error"] = part_error(config)
+        data["rows"]["error"] = part_error(config)
     if "precompute" in parts:
         limit = args.precompute_limit_min
-        data["parts"]["precompute"] = part_precompute(
+        data["rows"]["precompute"] = part_precompute(
             config,
             config["precompute"]["limit_min"] if limit is None else limit,
             log=lambda text: print(text, flush=True),
         )
         if previous:
-            data["parts"]["precompute"]["previous"] = previous
+            data["rows"]["precompute"]["previous"] = previous
     print(write_report(data, args.out))
-    print(f"wrote {md}" + (f" and {PNG_NAME}" if "error" in data["parts"] else ""))
+    print(f"wrote {md}" + (f" and {PNG_NAME}" if "error" in data["rows"] else ""))
 
 
 if __name__ == "__main__":

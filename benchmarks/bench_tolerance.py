@@ -14,7 +14,8 @@ tolerances t:
   meeting t; the issue asks for it to be reported).
 
 Run ``python benchmarks/bench_tolerance.py`` (about 10 minutes on 2 cores) or
-``--quick``; writes ``tolerance.md`` to ``--output`` (default ``benchmarks/results/``).
+``--quick``; writes ``tolerance.md`` and ``tolerance.json`` (the environment and the raw
+rows) to ``--output`` (default ``benchmarks/results/``).
 `held_out_scenes` is shared with ``tests/test_tolerance.py``.
 """
 
@@ -22,8 +23,7 @@ from __future__ import annotations
 
 import argparse
 import os
-import statistics
-import time
+import sys
 from pathlib import Path
 
 import jax
@@ -32,6 +32,9 @@ import trimesh
 
 import jaxcaustics as jc
 from jaxcaustics.methods.choose import allowed_rows, as_mesh_scene, resolve_knobs
+
+sys.path.insert(0, str(Path(__file__).parent))  # the harness beside this script
+from harness import timed, write_results  # noqa: E402
 
 OUTPUT = Path(__file__).parent / "results"
 
@@ -59,7 +62,7 @@ def held_out_scenes(pixels: int = 32) -> dict:
         jc.DirectionalLight.from_angles(8.0, 120.0),
         jc.PlaneReceiver((-0.08, 0.08, -0.08, 0.08), shape),
         thickness=0.012,
-        throw=0.4,
+        screen_distance=0.4,
     )
     blob = trimesh.creation.icosphere(3, radius=1.0)
     blob.apply_scale((0.34, 0.28, 0.25))
@@ -93,19 +96,6 @@ def render_row(scene, row: dict, table_pixels):
     return jc.render(scene, row["method"], **knobs)
 
 
-def timed(fn, repeats: int = 3) -> tuple[np.ndarray, float, float]:
-    """(result, median seconds of `repeats` calls after a first, first call seconds)."""
-    start = time.perf_counter()
-    out = jax.block_until_ready(fn())
-    first = time.perf_counter() - start
-    times = []
-    for _ in range(repeats):
-        start = time.perf_counter()
-        jax.block_until_ready(fn())
-        times.append(time.perf_counter() - start)
-    return np.asarray(out), statistics.median(times), first
-
-
 def tolerances_for(rows: list[dict], margin: float) -> list[float]:
     """Three tolerances spanning what the table's settings reach: just above the best
     setting's error times `margin`, the median, and just above the worst."""
@@ -122,11 +112,12 @@ def measure_kind(kind: str, scene, ref_knobs: dict, log=print) -> list[dict]:
     allowed, _ = allowed_rows(scene, choosable)
     measured = []
     for row in allowed:
-        image, t, first = timed(lambda row=row: render_row(scene, row, table["pixels"]))
-        measured.append(dict(row=row, error=jc.image_error(image, ref), time_s=t, first_s=first))
+        t = timed(lambda row=row: render_row(scene, row, table["pixels"]), repeats=3)
+        error = jc.image_error(np.asarray(t.out), ref)
+        measured.append(dict(row=row, error=error, time_s=t.median, first_s=t.first))
         log(
             f"  {kind} {row['method']} {row['knobs']} {row.get('as_mesh')}: "
-            f"error {measured[-1]['error']:.4f} time {t:.4f} s"
+            f"error {error:.4f} time {t.median:.4f} s"
         )
     out = []
     for tol in sorted(set(tolerances_for(allowed, jc.methods.choose.DEFAULT_MARGIN))):
@@ -216,9 +207,9 @@ def main(argv=None) -> list[dict]:
         before = os.getloadavg()[0]
         results += measure_kind(kind, scene, ref_knobs)
         loads[kind] = f"{before:.1f} / {os.getloadavg()[0]:.1f}"
-    args.output.mkdir(parents=True, exist_ok=True)
-    (args.output / "tolerance.md").write_text(report(results, pixels, loads))
-    print(report(results, pixels, loads))
+    text = report(results, pixels, loads)
+    write_results("tolerance", results, text, dict(pixels=pixels, loads=loads), args.output)
+    print(text)
     return results
 
 

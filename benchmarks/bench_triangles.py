@@ -10,7 +10,8 @@ below, normal light; float32):
    with the time of one forward call (photon tracing + reconstruction, one jitted call,
    the triangle window fixed by `triangle_window` outside the timing) and of the gradient of
    a scalar loss ``sum(weights * image)`` with respect to the lens heights: median of
-   repeated runs after compilation (``block_until_ready``), compile time apart;
+   repeated runs after compilation (``block_until_ready``), compile time
+   (``lower(...).compile()``) apart;
 2. Gaussian splatting of the same photons at its best radius for each photon count
    (searched over 0.1 .. 3 pixels, by the unblurred error), timed the same way;
 3. the reference's own error (against the reference with twice its photons per axis)
@@ -19,7 +20,8 @@ below, normal light; float32):
 A 64 x 64-pixel screen, and in the full run a 256 x 256-pixel one as well (exact
 triangles and splats only).
 
-Writes ``benchmarks/results/triangles.md`` (tables) and ``triangles_error_vs_time.png``.
+Writes ``benchmarks/results/triangles.md`` (tables), ``triangles.json`` (the environment
+and the raw rows) and ``triangles_error_vs_time.png``.
 
     python benchmarks/bench_triangles.py            # full run (minutes on 2 cores)
     python benchmarks/bench_triangles.py --quick    # 65^2 and 129^2 only, to check it runs
@@ -42,7 +44,7 @@ from jaxcaustics import reference
 from jaxcaustics.methods.triangles.method import splat_photons, trace_photons, triangle_window
 
 sys.path.insert(0, str(Path(__file__).parent))  # the harness beside this script
-from harness import markdown, timed  # noqa: E402
+from harness import compile_time, markdown, once, timed, write_results  # noqa: E402
 
 RESULTS = Path(__file__).parent / "results"
 APERTURE = (0.0, 0.1, 0.0, 0.1)  # a 10 cm square lens
@@ -87,15 +89,18 @@ def time_method(scene, forward_fn, weights, repeats):
 
         return jax.grad(loss)(heights)
 
-    f_first, f_med = timed(forward, scene, repeats=repeats)
-    g_first, g_med = timed(gradient, scene.surface.heights, scene, repeats=repeats)
+    args = (scene.surface.heights, scene)
+    forward_c, f_compile = compile_time(forward, scene)
+    gradient_c, g_compile = compile_time(gradient, *args)
+    # at least 3 runs, fewer than `repeats` once they took over 10 s
+    f = timed(forward_c, scene, repeats=repeats, budget_s=10.0)
     timings = dict(
-        fwd_ms=1e3 * f_med,
-        grad_ms=1e3 * g_med,
-        compile_s=f_first - f_med,
-        grad_compile_s=g_first - g_med,
+        fwd_ms=1e3 * f.median,
+        grad_ms=1e3 * timed(gradient_c, *args, repeats=repeats, budget_s=10.0).median,
+        compile_s=f_compile,
+        grad_compile_s=g_compile,
     )
-    return timings, forward(scene)
+    return timings, f.out
 
 
 def triangle_rows(scene, truth, grids, weights, repeats, reconstruction, supersample=2):
@@ -167,23 +172,20 @@ def splat_rows(scene, truth, grids, weights, repeats):
 def reference_rows(scene, counts, truth_p):
     """The reference at `truth_p` photons per axis (the truth) and its error and time at
     each of `counts` (ascending) against it."""
-    start = time.perf_counter()
-    truth = reference.trace_lens(scene, truth_p)
-    truth_ms = 1e3 * (time.perf_counter() - start)
+    truth_s, truth = once(reference.trace_lens, scene, truth_p)
     rows = []
     for p in counts:
-        start = time.perf_counter()
-        image = reference.trace_lens(scene, p)
+        seconds, image = once(reference.trace_lens, scene, p)
         rows.append(
             dict(
                 photons=p,
                 error=jc.image_error(image, truth, blur=0.0),
                 error_blur=jc.image_error(image, truth),
-                fwd_ms=1e3 * (time.perf_counter() - start),
+                fwd_ms=1e3 * seconds,
             )
         )
         print("reference", rows[-1], flush=True)
-    rows.append(dict(photons=truth_p, error=None, error_blur=None, fwd_ms=truth_ms))
+    rows.append(dict(photons=truth_p, error=None, error_blur=None, fwd_ms=1e3 * truth_s))
     return truth, rows
 
 
@@ -323,8 +325,9 @@ def main(argv=None) -> None:
         " of 1 pixel; `missed`: flux fraction beyond the triangle window (`triangle_window`);"
         " `fwd_ms`: photon tracing + reconstruction, one jitted call; `grad_ms`: gradient of"
         " `sum(weights * (image - 1)^2)` (fixed random weights) with respect to the lens"
-        " heights (16^2), one jitted call; `compile_s`, `grad_compile_s`: first call minus the"
-        " median. Splats: `sigma` (pixels) is the radius of least unblurred error among"
+        " heights (16^2), one jitted call; `compile_s`, `grad_compile_s`: lowering and"
+        " compiling them (`lower(...).compile()`), timed apart. Splats: `sigma` (pixels) is"
+        " the radius of least unblurred error among"
         f" {', '.join(str(s) for s in SIGMAS)} (searched upwards, stopping once the error"
         " has risen twice), timed at that radius; `sigma_blur`, `best_blur`: the radius of"
         " least blurred error and that error.\n",
@@ -341,7 +344,7 @@ def main(argv=None) -> None:
         f"Total run time {elapsed / 60:.1f} min. The machine (2 CPU cores) was shared with"
         " other jobs during the run, so times can be off by tens of percent.\n",
     )
-    (args.out / "triangles.md").write_text("".join(text))
+    write_results("triangles", panels, "".join(text), dict(quick=args.quick), args.out)
     plot(panels, args.out / "triangles_error_vs_time.png")
     print("".join(text))
     print(f"wrote {args.out / 'triangles.md'} and triangles_error_vs_time.png")

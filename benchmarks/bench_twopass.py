@@ -4,7 +4,7 @@ Measures, on this machine's default JAX device:
 
 1. forward and gradient-of-a-scalar-loss time at 400x300 and 800x600 (N = 7, M = 6):
    median of repeated runs after compilation (``block_until_ready``), compile time
-   reported apart;
+   (``jax.jit(...).lower(...).compile()``) reported apart;
 2. error against the NumPy reference as the window (N, M) grows, on a scene whose rays
    move up to ~9 pixels, with the time of each setting;
 3. error and time as the number of Newton steps for the surface hit grows, under
@@ -12,7 +12,8 @@ Measures, on this machine's default JAX device:
 4. the reference's own error and time as its photon count grows, so a row of (2) can be
    matched with the reference time needed for the same error.
 
-Writes ``benchmarks/results/twopass.md`` (tables) and ``twopass_error_vs_time.png``.
+Writes ``benchmarks/results/twopass.md`` (tables), ``twopass.json`` (the environment and
+the raw rows) and ``twopass_error_vs_time.png``.
 
     python benchmarks/bench_twopass.py            # full run (a few minutes on 2 cores)
     python benchmarks/bench_twopass.py --quick    # tiny sizes, to check it runs
@@ -23,7 +24,6 @@ from __future__ import annotations
 import argparse
 import functools
 import sys
-import time
 from pathlib import Path
 
 import equinox as eqx
@@ -38,7 +38,7 @@ from jaxcaustics import reference
 periodic_error = functools.partial(jc.image_error, boundary="periodic")
 
 sys.path.insert(0, str(Path(__file__).parent))  # the harness beside this script
-from harness import markdown, timed  # noqa: E402
+from harness import compile_time, markdown, once, timed, write_results  # noqa: E402
 
 RESULTS = Path(__file__).parent / "results"
 
@@ -71,15 +71,18 @@ def speed_table(sizes, repeats) -> list[dict]:
                 )
             )(heights)
 
-        f_first, f_med = timed(forward, scene, repeats=repeats)
-        g_first, g_med = timed(gradient, scene.surface.heights, scene, repeats=repeats)
+        args = (scene.surface.heights, scene)
+        forward_c, f_compile = compile_time(forward, scene)
+        gradient_c, g_compile = compile_time(gradient, *args)
+        f_med = timed(forward_c, scene, repeats=repeats).median
+        g_med = timed(gradient_c, *args, repeats=repeats).median
         rows.append(
             dict(
                 size=f"{cols}x{rows_}",
                 fwd_ms=1e3 * f_med,
-                fwd_compile_s=f_first - f_med,
+                fwd_compile_s=f_compile,
                 grad_ms=1e3 * g_med,
-                grad_compile_s=g_first - g_med,
+                grad_compile_s=g_compile,
                 ratio=g_med / f_med,
             )
         )
@@ -123,15 +126,16 @@ def window_table(scene, truth, windows, repeats) -> list[dict]:
         if n == "auto":
             n, m = jc.auto_window(scene)
         fn = jax.jit(lambda s, n=n, m=m: jc.render(s, samples_x=n, channels_y=m, return_stats=True))
-        first, med = timed(fn, scene, repeats=repeats)
-        image, stats = fn(scene)
+        fn, compile_s = compile_time(fn, scene)
+        t = timed(fn, scene, repeats=repeats)
+        image, stats = t.out
         rows.append(
             dict(
                 N=n,
                 M=m,
                 error=periodic_error(image, truth),
-                time_ms=1e3 * med,
-                compile_s=first - med,
+                time_ms=1e3 * t.median,
+                compile_s=compile_s,
                 missed=float(stats["missed_flux_fraction"][0]),
             )
         )
@@ -150,14 +154,13 @@ def knob_table(scene, truth, knob, values, repeats) -> list[dict]:
         fn = jax.jit(
             lambda s, value=value: jc.render(s, samples_x=n, channels_y=m, **{knob: value})
         )
-        _, med = timed(fn, scene, repeats=repeats)
-        image = fn(scene)
+        t = timed(fn, scene, repeats=repeats)
         rows.append(
             {
                 knob: value,
-                "error": periodic_error(image, truth),
-                "error_no_blur": periodic_error(image, truth, blur=0.01),
-                "time_ms": 1e3 * med,
+                "error": periodic_error(t.out, truth),
+                "error_no_blur": periodic_error(t.out, truth, blur=0.01),
+                "time_ms": 1e3 * t.median,
             }
         )
         print(rows[-1], flush=True)
@@ -167,14 +170,9 @@ def knob_table(scene, truth, knob, values, repeats) -> list[dict]:
 def reference_table(scene, truth, photon_counts) -> list[dict]:
     rows = []
     for p in photon_counts:
-        start = time.perf_counter()
-        image = reference.trace_water(scene, photons_per_axis=p)
+        seconds, image = once(lambda p=p: reference.trace_water(scene, photons_per_axis=p))
         rows.append(
-            dict(
-                photons_per_axis=p,
-                error=periodic_error(image, truth),
-                time_ms=1e3 * (time.perf_counter() - start),
-            )
+            dict(photons_per_axis=p, error=periodic_error(image, truth), time_ms=1e3 * seconds)
         )
         print(rows[-1], flush=True)
     return rows
@@ -262,7 +260,8 @@ def main(argv=None) -> None:
 
     text = [
         "# Two-pass caustics benchmark\n",
-        f"Device: `{jax.devices()[0]}`; float32; median of {repeats} runs after compilation.\n",
+        f"Device: `{jax.devices()[0]}`; float32; median of {repeats} runs after compilation;"
+        " `*compile_s`: `jax.jit(...).lower(...).compile()`, timed apart.\n",
         "\n## Speed (N = 7, M = 6, 3 Newton steps; a periodic sea at 30 degrees)\n\n",
         markdown(
             speed,
@@ -309,7 +308,14 @@ def main(argv=None) -> None:
             {"error": "{:.4f}", "error_no_blur": "{:.4f}", "time_ms": "{:.2f}"},
         ),
     ]
-    (args.output / "twopass.md").write_text("".join(text))
+    raw = dict(
+        speed=speed,
+        window=window_rows,
+        reference=ref_rows,
+        hit_iterations=iter_rows,
+        supersample=super_rows,
+    )
+    write_results("twopass", raw, "".join(text), dict(quick=args.quick), args.output)
     plot(
         window_rows,
         ref_rows,

@@ -2,6 +2,7 @@
 and writes its table and plot. Slow (a few minutes on 2 cores, mostly compilation)."""
 
 import importlib.util
+import json
 from pathlib import Path
 
 import pytest
@@ -18,7 +19,8 @@ def test_bench_scaling_quick(tmp_path):
     text = (tmp_path / "scaling.md").read_text()
     for name in bench.WORKLOADS:
         assert f"| {name} | 1 |" in text and f"| {name} | 2 |" in text
-    assert "raw results" in text
+    raw = json.loads((tmp_path / "scaling.json").read_text())["rows"]
+    assert set(raw) == {"1", "2"} and all(name in raw["1"] for name in bench.WORKLOADS)
     png = tmp_path / "scaling.png"
     assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     assert png.stat().st_size < 100_000
