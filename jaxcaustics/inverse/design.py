@@ -1940,7 +1940,7 @@ def design_lens_variants(
 
     histories: list[list[float]] = [[] for _ in screen_distances]
     reports: list[list[dict[str, Any]]] = [[] for _ in screen_distances]
-    results = [optx.RESULTS.successful] * len(throws)
+    results = [optx.RESULTS.successful] * len(screen_distances)
     heights: list[np.ndarray | None] = [None] * len(screen_distances)
     for k, shape in enumerate(first.shapes):
         t0 = time.perf_counter()
