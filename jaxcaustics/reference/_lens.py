@@ -30,6 +30,7 @@ from ._optics import (
     _check_count,
     _check_int,
     _check_points,
+    _Receiver,
     _rng,
     chunk_photons,
 )
@@ -78,59 +79,6 @@ def _cells(
     if rng is None:
         return j + 0.5, i + 0.5
     return j + rng.random(k.size), i + rng.random(k.size)
-
-
-@dataclasses.dataclass(frozen=True)
-class _Receiver:
-    """A receiver (pixel grid on ``z = 0``) read into float64 values."""
-
-    extent: tuple[float, float, float, float]
-    shape: tuple[int, int]
-
-    @classmethod
-    def read(cls, receiver) -> _Receiver:
-        try:
-            rec_extent, rec_shape = receiver.extent, receiver.shape
-        except AttributeError as err:
-            raise ValueError(f"`scene.receiver` must have `extent` and `shape`: {err}") from err
-        ext = np.asarray(rec_extent, dtype=np.float64)
-        if (
-            ext.shape != (4,)
-            or not np.all(np.isfinite(ext))
-            or not (ext[1] > ext[0] and ext[3] > ext[2])
-        ):
-            raise ValueError(
-                f"`scene.receiver.extent` must be (x_min, x_max, y_min, y_max) with "
-                f"max > min, got {ext!r}"
-            )
-        try:
-            shape = tuple(int(s) for s in rec_shape)
-        except TypeError as err:
-            raise ValueError(
-                f"`scene.receiver.shape` must be (rows, cols), got {rec_shape!r}"
-            ) from err
-        if len(shape) != 2 or min(shape) < 1:
-            raise ValueError(f"`scene.receiver.shape` must be (rows, cols) >= 1, got {rec_shape!r}")
-        return cls((float(ext[0]), float(ext[1]), float(ext[2]), float(ext[3])), shape)  # type: ignore[arg-type]
-
-    @property
-    def pixel_area(self) -> float:
-        e, (rows, cols) = self.extent, self.shape
-        return (e[1] - e[0]) / cols * ((e[3] - e[2]) / rows)
-
-    def bin(self, x: np.ndarray, y: np.ndarray, weight: np.ndarray) -> tuple[np.ndarray, int]:
-        """Flux per pixel (flat, ``rows * cols``) of photons landing at (x, y) with
-        `weight` (0 for photons that did not land), and how many landed on the receiver
-        (``x_min <= x < x_max``, ``y_min <= y < y_max``) with a non-zero weight."""
-        rows, cols = self.shape
-        x_min, x_max, y_min, y_max = self.extent
-        inside = (weight != 0.0) & (x >= x_min) & (x < x_max) & (y >= y_min) & (y < y_max)
-        xs, ys = np.where(inside, x, x_min), np.where(inside, y, y_min)
-        col = np.clip(np.floor((xs - x_min) / ((x_max - x_min) / cols)), 0, cols - 1)
-        row = np.clip(np.floor((ys - y_min) / ((y_max - y_min) / rows)), 0, rows - 1)
-        pix = row.astype(np.int64) * cols + col.astype(np.int64)
-        flux = np.bincount(pix, np.where(inside, weight, 0.0), minlength=rows * cols)
-        return flux, int(np.count_nonzero(inside))
 
 
 @dataclasses.dataclass(frozen=True)

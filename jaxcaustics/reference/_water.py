@@ -14,6 +14,7 @@ from ._optics import (
     _check_count,
     _check_int,
     _check_points,
+    _Receiver,
     _rng,
     chunk_photons,
     refract,
@@ -52,7 +53,7 @@ def _read_scene(scene) -> _Water:
     try:
         surface, light, receiver = scene.surface, scene.light, scene.receiver
         heights, extent, boundary = surface.heights, surface.extent, surface.boundary
-        direction, rec_extent, rec_shape = light.direction, receiver.extent, receiver.shape
+        direction = light.direction
         rest_depth, ior, fresnel = scene.rest_depth, scene.ior, scene.fresnel
     except AttributeError as err:
         raise ValueError(f"`scene` must be a WaterScene-like object: {err}") from err
@@ -67,22 +68,7 @@ def _read_scene(scene) -> _Water:
         raise ValueError(f"`scene.light.direction` must point down (z < 0), got {d.tolist()}")
     d = d / norm
 
-    ext = np.asarray(rec_extent, dtype=np.float64)
-    if (
-        ext.shape != (4,)
-        or not np.all(np.isfinite(ext))
-        or not (ext[1] > ext[0] and ext[3] > ext[2])
-    ):
-        raise ValueError(
-            f"`scene.receiver.extent` must be (x_min, x_max, y_min, y_max) with "
-            f"max > min, got {ext!r}"
-        )
-    try:
-        shape = tuple(int(s) for s in rec_shape)
-    except TypeError as err:
-        raise ValueError(f"`scene.receiver.shape` must be (rows, cols), got {rec_shape!r}") from err
-    if len(shape) != 2 or min(shape) < 1:
-        raise ValueError(f"`scene.receiver.shape` must be (rows, cols) >= 1, got {rec_shape!r}")
+    rec = _Receiver.read(receiver)
 
     depth = float(np.asarray(rest_depth, dtype=np.float64))
     if not (math.isfinite(depth) and depth > 0.0):
@@ -99,8 +85,8 @@ def _read_scene(scene) -> _Water:
         iors,
         multichannel,
         bool(fresnel),
-        (float(ext[0]), float(ext[1]), float(ext[2]), float(ext[3])),
-        shape,
+        rec.extent,
+        rec.shape,
     )
 
 
