@@ -63,6 +63,7 @@ from .methods.choose import (
     method_support,
     reference_image,
 )
+from .methods.refine import ErrorEstimate, estimate_error, refine_to_tolerance
 from .methods.render import render
 from .methods.spot_lights.exit_rays import ExitRays, trace_exit_rays
 from .methods.spot_lights.fit import FitInfo, fit_spot_lights, refine_axis
@@ -133,6 +134,8 @@ __all__ = [
     "Effects",
     "Ellipsoid",
     "EllipsoidScene",
+    "ErrorEstimate",
+    "estimate_error",
     "evaluate_spot_lights",
     "ExitRays",
     "export_lens",
@@ -179,6 +182,7 @@ __all__ = [
     "RecoveryResult",
     "reference_image",
     "refine_axis",
+    "refine_to_tolerance",
     "reflect",
     "refract",
     "relative_l2",

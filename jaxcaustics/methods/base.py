@@ -108,6 +108,15 @@ class Method(eqx.Module):
         scenes: the largest size any needs), so that one program renders them all."""
         return self
 
+    def refined(self) -> Method:
+        """The next finer setting of the method's accuracy knob (twice the samples along
+        each side): rendering both estimates the error (`estimate_error`)."""
+        raise NotImplementedError(f"{type(self).__name__} has no finer setting")
+
+    def coarsened(self) -> Method | None:
+        """The next coarser setting (`refined` undone), or ``None`` at the coarsest."""
+        return None
+
     def rounded(self) -> Method:
         """The method with a photon count asked for (a table's per-pixel grid) rounded to
         one it runs; most methods run any count."""

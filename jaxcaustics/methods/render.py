@@ -8,12 +8,12 @@ from typing import Any
 
 import jax
 import numpy as np
-from jaxtyping import Array
 
 from .._checks import check_bool, check_number
 from ..scene.scene import WaterScene
 from .base import Method
 from .choose import DEFAULT_MARGIN, as_mesh_scene, choose_method
+from .refine import DEFAULT_BUDGET_S, refine_to_tolerance
 from .registry import as_method, method_class
 
 logger = logging.getLogger("jaxcaustics")
@@ -44,7 +44,9 @@ def render(
     method: str | Method | None = None,
     *,
     tolerance: float | None = None,
-    margin: float = DEFAULT_MARGIN,
+    margin: float | None = None,
+    refine: bool = False,
+    budget_s: float | None = None,
     return_stats: bool = False,
     **knobs: Any,
 ):
@@ -62,11 +64,22 @@ def render(
       (then no `**knobs`). Default: the scene's natural method (``"twopass"`` for water,
       ``"spot_lights"`` for ellipsoids, ``"triangles"`` otherwise).
     - `tolerance`: instead of naming knobs, ask for an error against the reference
-      (relative L1 after a 1-pixel Gaussian blur of both images): the fastest measured
-      method and knobs expected to meet it are picked (`choose_method`; with `method`
-      given, that method's knobs). The choice is logged (logger ``"jaxcaustics"``, level
-      INFO) and, with `return_stats`, returned as ``stats["choice"]`` (a `Choice`: method,
-      knobs, expected error and time). `margin`: see `choose_method`.
+      (relative L1 after a 1-pixel Gaussian blur of both images, `image_error`): the
+      fastest measured method and knobs expected to meet it are picked (`choose_method`;
+      with `method` given, that method's knobs). The choice is logged (logger
+      ``"jaxcaustics"``, level INFO) and, with `return_stats`, returned as
+      ``stats["choice"]`` (a `Choice`: method, knobs, expected error and time).
+      `margin`: see `choose_method` (default 2).
+    - `refine`: with `tolerance`, measure instead of trusting the table: the table's
+      guess (`margin` default 1) and the next coarser setting of its accuracy knob are
+      rendered, their difference estimates the error on this scene (`estimate_error`),
+      and the knob is refined until the estimate is within `tolerance`
+      (`refine_to_tolerance`), or `budget_s` seconds (default 120) are spent or a finer
+      setting does not fit in memory (then a warning states the error reached).
+      ``stats["error_estimate"]`` and ``stats["levels"]`` say what happened. The
+      estimate sees only what the refined knob changes: it is reliable for caustic
+      triangles, but misses the two-pass method's window and sample-footprint error
+      (measured in ``benchmarks/results/estimate.md``).
     - `return_stats`: also return a dict of diagnostics (``missed_flux_fraction`` per
       channel). Whether asked for or not, a two-pass render that leaves out more than
       1% of the light (beyond its window) or spot lights that do not carry it warn
@@ -75,8 +88,9 @@ def render(
       `caustic_triangles`, `caustics_mapping`, `adaptive_caustic_map`, `spot_lights`).
 
     Every argument is checked before anything is compiled: `method` one of the names
-    above, `return_stats` a bool, `tolerance` a positive number, `margin` a number >= 1
-    (and only with `tolerance`), a knob the method does not take is refused by name, and
+    above, `return_stats` and `refine` bools, `tolerance` a positive number, `margin` a
+    number >= 1 (only with `tolerance`), `budget_s` a positive number (only with
+    `refine`), a knob the method does not take is refused by name, and
     each method checks its knobs' types, ranges and memory (`memory_limit`).
 
     **Returns:** the irradiance image, relative to the irradiance the light gives a
@@ -84,28 +98,44 @@ def render(
     channels)`` for a sequence of indices. With `return_stats`, ``(image, stats)``.
     """
     return_stats = check_bool(return_stats, "return_stats")
-    check_number(margin, "margin", low=1.0)
+    refine = check_bool(refine, "refine")
     if method is not None and not isinstance(method, Method):
         method_class(method)  # the name checked before anything is chosen or compiled
-    choice = None
-    if tolerance is not None:
-        if knobs:
-            raise ValueError(f"`tolerance` picks the knobs: do not pass {sorted(knobs)} with it")
+    if tolerance is None:
+        for name, value in (("margin", margin), ("budget_s", budget_s), ("refine", refine)):
+            if value not in (None, False):
+                raise ValueError(f"`{name}` applies only with `tolerance`")
+    elif knobs:
+        raise ValueError(f"`tolerance` picks the knobs: do not pass {sorted(knobs)} with it")
+    stats: dict[str, Any] = {}
+    if tolerance is None:
+        method = as_method(method, knobs, scene)
+        result = method(scene)
+    elif refine:
         name = method.name if isinstance(method, Method) else method
+        margin = check_number(1.0 if margin is None else margin, "margin", low=1.0)
+        budget_s = DEFAULT_BUDGET_S if budget_s is None else budget_s
+        result, info = refine_to_tolerance(
+            scene, tolerance, method=name, margin=margin, budget_s=budget_s
+        )
+        method = info["method"]
+        logger.info("render: %s, refined to %r", info["choice"], method)
+        stats = {k: info[k] for k in ("choice", "error_estimate", "levels")}
+    else:
+        if budget_s is not None:
+            raise ValueError("`budget_s` applies only with `refine=True`")
+        name = method.name if isinstance(method, Method) else method
+        margin = DEFAULT_MARGIN if margin is None else margin
         choice = choose_method(scene, tolerance, method=name, margin=margin)
         logger.info("render: %s", choice)
-        method, knobs = choice.method, dict(choice.knobs)
         if choice.as_mesh:
             scene = as_mesh_scene(scene, choice.as_mesh["subdivisions"])
-    elif margin != DEFAULT_MARGIN:
-        raise ValueError("`margin` applies only with `tolerance`")
-    method = as_method(method, knobs, scene)
-    result = method(scene)
+        method = method_class(choice.method).from_knobs(**choice.knobs)
+        result = method(scene)
+        stats = {"choice": choice}
     _warn_missed(method, result.missed_flux_fraction)
     if return_stats:
-        stats: dict[str, Array] = {"missed_flux_fraction": result.missed_flux_fraction}
-        stats.update(result.stats)
-        if choice is not None:
-            stats["choice"] = choice
-        return result.image, stats
+        return result.image, {"missed_flux_fraction": result.missed_flux_fraction} | (
+            result.stats | stats
+        )
     return result.image

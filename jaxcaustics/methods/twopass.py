@@ -366,6 +366,15 @@ class TwoPass(Method):
         n, m = (int(v) for v in windows.max(axis=0))
         return dataclasses.replace(self, samples_x=n, channels_y=m)
 
+    def refined(self) -> TwoPass:
+        """Twice the samples per pixel side (`supersample`)."""
+        return dataclasses.replace(self, supersample=2 * self.supersample)
+
+    def coarsened(self) -> TwoPass | None:
+        if self.supersample % 2:
+            return None
+        return dataclasses.replace(self, supersample=self.supersample // 2)
+
     def trace(self, scene) -> TwoPassResult:
         return two_pass(scene, **self.knobs())
 

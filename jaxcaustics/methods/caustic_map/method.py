@@ -306,6 +306,18 @@ class _CausticMapMethod(Method):
     scene_types: ClassVar[tuple[type, ...]] = (MeshScene,)
     resolution_knobs: ClassVar[tuple[str, ...]] = ("photons",)
 
+    def refined(self) -> _CausticMapMethod:
+        """Twice the photons along each side of the light's view."""
+        return dataclasses.replace(self, photons=2 * self.photons)
+
+    def coarsened(self) -> _CausticMapMethod | None:
+        if self.photons % 2 or self.photons // 2 < self._fewest_photons():
+            return None
+        return dataclasses.replace(self, photons=self.photons // 2)
+
+    def _fewest_photons(self) -> int:
+        return 2
+
     def support(self, scene) -> str | None:
         if not isinstance(scene, MeshScene):
             return "caustic maps take meshes"
@@ -655,6 +667,9 @@ class AdaptiveCausticMap(_CausticMapMethod):
     capacity: int | None = None
 
     name: ClassVar[str] = "adaptive"
+
+    def _fewest_photons(self) -> int:
+        return self.base
 
     def rounded(self) -> AdaptiveCausticMap:
         """`photons` rounded up to `base` times a power of two (the grids the traversal

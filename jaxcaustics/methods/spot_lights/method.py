@@ -10,6 +10,7 @@ fitting.
 
 from __future__ import annotations
 
+import dataclasses
 import inspect
 import math
 from typing import Any, ClassVar
@@ -186,6 +187,16 @@ class SpotLightMethod(Method):
         if isinstance(scene, MeshScene):
             return _sphere_like(np.asarray(scene.generator.vertices, dtype=float))
         return _moderate_aspect(np.asarray(scene.generator.radii, dtype=float), "ellipsoid")
+
+    def refined(self) -> SpotLightMethod:
+        """Twice the traced rays along each side (the fit's input; the lights' model error
+        is not refined)."""
+        return dataclasses.replace(self, rays_per_axis=2 * self.rays_per_axis)
+
+    def coarsened(self) -> SpotLightMethod | None:
+        if self.rays_per_axis % 2 or self.rays_per_axis < 8:
+            return None
+        return dataclasses.replace(self, rays_per_axis=self.rays_per_axis // 2)
 
     def trace(self, scene) -> SpotLightResult:
         return spot_lights(scene, **self.knobs())

@@ -673,6 +673,17 @@ class CausticTriangles(Method):
         )
         return dataclasses.replace(self, window=window)
 
+    def refined(self) -> CausticTriangles:
+        """Twice the photon grid's cells along each side (``n`` vertices: ``2n - 1``)."""
+        rows, cols = _check_grid(self.photons)
+        return dataclasses.replace(self, photons=(2 * rows - 1, 2 * cols - 1))
+
+    def coarsened(self) -> CausticTriangles | None:
+        rows, cols = _check_grid(self.photons)
+        if rows % 2 == 0 or cols % 2 == 0 or min(rows, cols) < 5:
+            return None
+        return dataclasses.replace(self, photons=((rows + 1) // 2, (cols + 1) // 2))
+
     def trace(self, scene) -> TrianglesResult:
         return caustic_triangles(scene, **self.knobs())
 

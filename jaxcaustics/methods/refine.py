@@ -1,0 +1,171 @@
+"""A method's error on the scene at hand, and ``render(scene, tolerance=t)`` refining
+until that error meets ``t``.
+
+The anchor is an adaptive ODE solver's embedded error estimate: a method renders the
+scene at two settings of its accuracy knob, one twice as fine as the other along each
+side (`Method.refined`: two-pass supersampling, photon grids, traced rays), and the
+difference of the two images (`image_error`: relative L1 after a 1-pixel blur, the
+measure the tolerance is stated in) estimates the error of the finer one. For an error
+that halves with each refinement (first order) the difference *is* the finer image's
+error; for faster convergence it over-estimates it (three times for second order); for
+noise it is at least it. Light the method's model leaves out whatever the setting (the
+two-pass window's missed flux, light the spot lights do not carry) is added, as it is in
+both images. The estimate's reliability against the NumPy reference on held-out scenes is
+measured by ``benchmarks/bench_estimate.py``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import time
+import warnings
+
+import numpy as np
+
+from .._checks import check_number
+from .base import Method, RenderResult
+from .choose import (
+    Choice,
+    accuracy_table,
+    allowed_rows,
+    as_mesh_scene,
+    choose_method,
+    image_error,
+    scene_kind,
+)
+from .registry import method_class
+
+#: seconds `render(scene, tolerance=t)` may spend refining before it stops and warns
+DEFAULT_BUDGET_S = 120.0
+
+
+@dataclasses.dataclass(frozen=True)
+class ErrorEstimate:
+    """A method's estimated error on one scene (`estimate_error`).
+
+    - `error`: the estimated error of the finer image (relative L1 after a 1-pixel blur
+      against an exact render): `difference` plus `missed`.
+    - `difference`: `image_error` of the coarser image against the finer.
+    - `missed`: the largest per-channel fraction of the light the finer render's model
+      left out (0 for methods whose missed flux is light landing off the receiver).
+    - `coarse`, `fine`: the two settings rendered.
+    """
+
+    error: float
+    difference: float
+    missed: float
+    coarse: Method
+    fine: Method
+
+
+def _model_missed(method: Method, result: RenderResult) -> float:
+    if method.missed_advice is None:
+        return 0.0
+    return float(np.nanmax(np.asarray(result.missed_flux_fraction, float), initial=0.0))
+
+
+def _compare(scene, coarse: Method, low: RenderResult, fine: Method, high: RenderResult):
+    difference = image_error(np.asarray(low.image), np.asarray(high.image))
+    missed = _model_missed(fine, high)
+    return ErrorEstimate(difference + missed, difference, missed, coarse, fine)
+
+
+def estimate_error(scene, method: Method) -> tuple[RenderResult, ErrorEstimate]:
+    """Render `scene` with `method` and with the next coarser setting of its accuracy
+    knob (at the coarsest, with `method` and the next finer one) and estimate the finer
+    image's error from their difference.
+
+    **Returns:** ``(result, estimate)``: the finer render (a `RenderResult`) and its
+    `ErrorEstimate`. Two renders: about 1.25 to 1.5 times the cost of `method` alone when
+    it can be coarsened (the coarser costs a quarter to a half), 3 to 5 times otherwise.
+    """
+    if not isinstance(method, Method):
+        raise ValueError(f"`method` must be a Method, got {type(method).__name__}")
+    coarse = method.coarsened()
+    fine = method
+    if coarse is None:
+        coarse, fine = method, method.refined()
+    low, high = coarse(scene), fine(scene)
+    return high, _compare(scene, coarse, low, fine, high)
+
+
+def _start(scene, tolerance: float, name: str | None, margin: float) -> Choice | None:
+    """The table's guess, or ``None`` when no measured setting is expected to meet
+    `tolerance` (then the most accurate one starts, `_most_accurate`)."""
+    try:
+        return choose_method(scene, tolerance, method=name, margin=margin)
+    except ValueError as err:
+        if "below what any measured setting reaches" not in str(err):
+            raise
+        return None
+
+
+def _most_accurate(scene, tolerance: float, name: str | None, margin: float) -> Choice:
+    """The choice for the loosest tolerance the most accurate allowed setting meets."""
+    rows = accuracy_table()["kinds"][scene_kind(scene)]["rows"]
+    rows = [r for r in rows if r.get("choosable", True) and (name is None or r["method"] == name)]
+    allowed, _ = allowed_rows(scene, rows)
+    best = min(allowed, key=lambda r: r["error"])
+    return choose_method(scene, best["error"] * margin * (1 + 1e-9), method=name, margin=margin)
+
+
+def refine_to_tolerance(
+    scene,
+    tolerance: float,
+    *,
+    method: str | None = None,
+    margin: float = 1.0,
+    budget_s: float = DEFAULT_BUDGET_S,
+) -> tuple[RenderResult, dict]:
+    """What ``render(scene, tolerance=t)`` does: start from the accuracy table's guess
+    (`choose_method` with `margin`), estimate its error on this scene (`estimate_error`)
+    and refine its accuracy knob until the estimate is within `tolerance`, or `budget_s`
+    seconds have passed, or a finer setting does not fit in memory (then `warnings.warn`
+    with the error reached).
+
+    **Returns:** ``(result, info)``: the finest render and ``{"choice": the table's
+    Choice, "method": the Method rendered, "error_estimate": its estimated error,
+    "levels": [ErrorEstimate, ...] one per comparison, "met": bool}``.
+    """
+    tolerance = check_number(tolerance, "tolerance", low=0.0, low_open=True)
+    budget_s = check_number(budget_s, "budget_s", low=0.0, low_open=True)
+    choice = _start(scene, tolerance, method, margin)
+    if choice is None:
+        choice = _most_accurate(scene, tolerance, method, margin)
+    if choice.as_mesh:
+        scene = as_mesh_scene(scene, choice.as_mesh["subdivisions"])
+    start = time.perf_counter()
+    guess = method_class(choice.method).from_knobs(**choice.knobs)
+    result, estimate = estimate_error(scene, guess)
+    levels = [estimate]
+    stop = None
+    while estimate.error > tolerance:
+        if time.perf_counter() - start > budget_s:
+            stop = f"the time budget ({budget_s:g} s) was spent"
+            break
+        finer = estimate.fine.refined()
+        try:
+            higher = finer(scene)
+        except ValueError as err:  # a finer setting over the memory limit (checked first)
+            if "memory_limit" not in str(err):
+                raise
+            stop = f"a finer setting does not fit in memory ({err})"
+            break
+        estimate = _compare(scene, estimate.fine, result, finer, higher)
+        result = higher
+        levels.append(estimate)
+    met = estimate.error <= tolerance
+    if not met:
+        warnings.warn(
+            f"render: tolerance {tolerance:g} not met: the estimated error is "
+            f"{estimate.error:.3g} with {estimate.fine!r} ({stop})",
+            stacklevel=3,
+        )
+    info = {
+        "choice": choice,
+        "method": estimate.fine,
+        "error_estimate": estimate.error,
+        "levels": levels,
+        "met": met,
+    }
+    return result, info
