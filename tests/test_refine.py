@@ -73,3 +73,20 @@ def test_refine_options_are_checked():
         jc.render(lens(), tolerance=0.1, refine=True, budget_s=-1.0)
     with pytest.raises(ValueError, match="`method` must be a Method"):
         jc.estimate_error(lens(), "triangles")
+
+
+def test_only_methods_with_a_reliable_estimate_are_refined():
+    """The two-pass estimate misses its window and footprint error (measured several
+    times under the true error): refining water would miss its tolerance unsaid."""
+    water = jc.WaterScene(
+        jc.HeightField(np.zeros((8, 8)), (0, 1, 0, 1)),
+        jc.DirectionalLight.from_angles(20.0),
+        jc.PlaneReceiver((0, 1, 0, 1), (8, 8)),
+    )
+    with pytest.raises(ValueError, match="no method whose error estimate is reliable"):
+        jc.render(water, tolerance=0.01, refine=True)
+    with pytest.raises(ValueError, match="estimate of method 'twopass' was measured"):
+        jc.render(water, "twopass", tolerance=0.01, refine=True)
+    assert [c.name for c in jc.methods.registry.METHODS.values() if c.estimate_is_reliable] == [
+        "triangles"
+    ]

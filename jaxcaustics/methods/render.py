@@ -77,9 +77,9 @@ def render(
       (`refine_to_tolerance`), or `budget_s` seconds (default 120) are spent or a finer
       setting does not fit in memory (then a warning states the error reached).
       ``stats["error_estimate"]`` and ``stats["levels"]`` say what happened. The
-      estimate sees only what the refined knob changes: it is reliable for caustic
-      triangles, but misses the two-pass method's window and sample-footprint error
-      (measured in ``benchmarks/results/estimate.md``).
+      estimate sees only what the refined knob changes, so only methods whose estimate
+      was measured reliable are refined (caustic triangles: lens, mesh and, as a mesh,
+      ellipsoid scenes; ``benchmarks/results/estimate.md``); for others it is refused.
     - `return_stats`: also return a dict of diagnostics (``missed_flux_fraction`` per
       channel). Whether asked for or not, a two-pass render that leaves out more than
       1% of the light (beyond its window) or spot lights that do not carry it warn

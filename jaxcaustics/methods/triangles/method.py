@@ -651,6 +651,7 @@ class CausticTriangles(Method):
 
     name: ClassVar[str] = "triangles"
     resolution_knobs: ClassVar[tuple[str, ...]] = ("photons",)
+    estimate_is_reliable: ClassVar[bool] = True
     scene_types: ClassVar[tuple[type, ...]] = (LensScene, MeshScene)
 
     def needs_sizing(self) -> bool:

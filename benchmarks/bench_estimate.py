@@ -1,0 +1,216 @@
+"""How far to trust a method's own error estimate, and what refining to a tolerance costs.
+
+On held-out scenes (`bench_tolerance.held_out_scenes`, not the accuracy tables' scenes,
+plus the held-out sea under light 0 and 60 degrees from vertical):
+
+1. **Reliability.** For every setting of the kind's accuracy table that the scene allows,
+   `jc.estimate_error` renders it with its next coarser setting and estimates the finer
+   image's error; the true error is the finer image against a dense reference (relative
+   L1 after a 1-pixel blur, `image_error`). ``true / estimate`` above 1 is an optimistic
+   estimate; the issue asks for at most 1.5 on every scene.
+2. **Refining.** ``render(scene, tolerance=t, refine=True)`` against the table's choice
+   (``refine=False``) for each t: the true error, whether it met t, and the time (one
+   call, compilation included: refining compiles every level it renders), beside the
+   fastest table setting whose finer image met t (median of 3 after compiling).
+
+Run ``python benchmarks/bench_estimate.py`` (about 15 minutes on 2 cores) or ``--quick``;
+writes ``estimate.md``, ``estimate.json`` and ``estimate.png`` to ``--output``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+import warnings
+from pathlib import Path
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+
+import jaxcaustics as jc  # noqa: E402
+from jaxcaustics.methods.choose import allowed_rows, as_mesh_scene, resolve_knobs  # noqa: E402
+from jaxcaustics.methods.registry import method_class  # noqa: E402
+
+sys.path.insert(0, str(Path(__file__).parent))  # the harness beside this script
+from bench_tolerance import held_out_scenes  # noqa: E402
+from harness import environment, markdown, timed, write_results  # noqa: E402
+
+OUTPUT = Path(__file__).parent / "results"
+TOLERANCES = {"water": (0.05, 0.02, 0.01, 0.005), "lens": (0.05, 0.02, 0.01, 0.005)}
+MESH_TOLERANCES = (0.05, 0.02)
+
+
+def scenes(pixels: int) -> dict:
+    """``{name: (kind, scene, reference knobs)}``: the held-out scenes, and the held-out
+    sea under other light angles."""
+    out = {kind: (kind, *v) for kind, v in held_out_scenes(pixels).items()}
+    water, knobs = held_out_scenes(pixels)["water"]
+    for angle in (0.0, 60.0):
+        lit = jc.WaterScene(
+            water.surface, jc.DirectionalLight.from_angles(angle), water.receiver, 0.7
+        )
+        out[f"water {angle:g} deg"] = ("water", lit, knobs)
+    return out
+
+
+def method_for(scene, row: dict, table_pixels):
+    """The table row's `Method` for `scene` (and the scene it renders: an ellipsoid's
+    mesh for ``as_mesh`` rows)."""
+    knobs = resolve_knobs(row["method"], row["knobs"], scene.receiver.shape, table_pixels)
+    if row.get("as_mesh"):
+        scene = as_mesh_scene(scene, row["as_mesh"]["subdivisions"])
+    return method_class(row["method"]).from_knobs(**knobs), scene
+
+
+def reliability(name, kind, scene, ref, quick: bool, log) -> list[dict]:
+    table = jc.accuracy_table()["kinds"][kind]
+    rows = [r for r in table["rows"] if r.get("choosable", True)]
+    allowed, _ = allowed_rows(scene, rows)
+    if quick:
+        allowed = sorted(allowed, key=lambda r: r["time_s"])[:3]
+    out = []
+    for row in allowed:
+        method, target = method_for(scene, row, table["pixels"])
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            result, estimate = jc.estimate_error(target, method)
+            timing = timed(lambda m=estimate.fine, s=target: m(s).image, repeats=3)
+        true = jc.image_error(np.asarray(result.image), ref)
+        out.append(
+            dict(
+                scene=name,
+                kind=kind,
+                method=repr(estimate.fine),
+                estimate=estimate.error,
+                difference=estimate.difference,
+                missed=estimate.missed,
+                true=true,
+                ratio=true / max(estimate.error, 1e-12),
+                time_s=timing.median,
+            )
+        )
+        log(f"  {name} {out[-1]['method']}: estimate {estimate.error:.4g} true {true:.4g}")
+    return out
+
+
+def refining(name, kind, scene, ref, measured: list[dict], log) -> list[dict]:
+    out = []
+    tolerances = TOLERANCES.get(kind, MESH_TOLERANCES)
+    for t in tolerances:
+        row = dict(scene=name, kind=kind, tolerance=t)
+        for label, refine in (("refined", True), ("table", False)):
+            start = time.perf_counter()
+            with warnings.catch_warnings(record=True) as caught:
+                warnings.simplefilter("always")
+                try:
+                    image, stats = jc.render(scene, tolerance=t, refine=refine, return_stats=True)
+                except ValueError as err:  # the table refuses a tolerance below its settings
+                    row[label] = dict(refused=str(err)[:80])
+                    continue
+            seconds = time.perf_counter() - start
+            error = jc.image_error(np.asarray(image), ref)
+            said = [str(w.message)[:60] for w in caught if "not met" in str(w.message)]
+            row[label] = dict(
+                error=error,
+                met=error <= t,
+                seconds=seconds,
+                estimate=stats.get("error_estimate"),
+                warned=bool(said),
+            )
+        meeting = [m for m in measured if m["scene"] == name and m["true"] <= t]
+        fastest = min(meeting, key=lambda m: m["time_s"]) if meeting else None
+        row["fastest"] = (
+            None if fastest is None else dict(method=fastest["method"], time_s=fastest["time_s"])
+        )
+        out.append(row)
+        log(f"  {name} t={t}: {row}")
+    return out
+
+
+def plot(rows: list[dict], path: Path) -> None:
+    fig, ax = plt.subplots(figsize=(5.5, 4.5))
+    for kind in sorted({r["kind"] for r in rows}):
+        mine = [r for r in rows if r["kind"] == kind]
+        ax.loglog([r["estimate"] for r in mine], [r["true"] for r in mine], "o", label=kind)
+    low = min(min(r["estimate"], r["true"]) for r in rows) / 2
+    high = max(max(r["estimate"], r["true"]) for r in rows) * 2
+    ax.plot([low, high], [low, high], "k-", lw=0.8, label="true = estimate")
+    ax.plot([low, high], [1.5 * low, 1.5 * high], "k--", lw=0.8, label="true = 1.5 x estimate")
+    ax.set_xlabel("estimated error (two settings)")
+    ax.set_ylabel("true error (against the reference)")
+    ax.set_title("Error estimates on held-out scenes")
+    ax.legend(fontsize=7)
+    fig.tight_layout()
+    fig.savefig(path, dpi=90)
+    plt.close(fig)
+
+
+def report(reliable: list[dict], refined: list[dict]) -> str:
+    worst = max(reliable, key=lambda r: r["ratio"])
+    lines = [
+        "# Error estimates and refining to a tolerance",
+        "",
+        "Generated by `benchmarks/bench_estimate.py` (see its docstring for the method).",
+        "`ratio` = true / estimate: above 1 the estimate is optimistic.",
+        "",
+        markdown(
+            reliable,
+            ["scene", "method", "estimate", "missed", "true", "ratio", "time_s"],
+            {k: "{:.4g}" for k in ("estimate", "missed", "true", "ratio", "time_s")},
+        ),
+        f"Largest ratio: **{worst['ratio']:.2f}** ({worst['scene']}, {worst['method']}).",
+        "",
+        "## `render(scene, tolerance=t, refine=True)` against the table's choice",
+        "",
+        "| scene | t | refined: error | met | s | table: error | met | s | fastest meeting t | s |",
+        "|---|--:|--:|---|--:|--:|---|--:|---|--:|",
+    ]
+    for r in refined:
+        cells = [r["scene"], f"{r['tolerance']:g}"]
+        for label in ("refined", "table"):
+            v = r[label]
+            if "refused" in v:
+                cells += ["refused", "-", "-"]
+            else:
+                cells += [
+                    f"{v['error']:.4f}",
+                    "yes" if v["met"] else ("warned" if v["warned"] else "**no**"),
+                    f"{v['seconds']:.2f}",
+                ]
+        f = r["fastest"]
+        cells += ["-", "-"] if f is None else [f["method"][:60], f"{f['time_s']:.3f}"]
+        lines.append("| " + " | ".join(cells) + " |")
+    return "\n".join(lines) + "\n\n![estimate vs true](estimate.png)\n"
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--quick", action="store_true", help="16 px, 3 settings per scene")
+    parser.add_argument("--output", type=Path, default=OUTPUT)
+    args = parser.parse_args()
+    pixels = 16 if args.quick else 32
+    reliable, refined = [], []
+    for name, (kind, scene, ref_knobs) in scenes(pixels).items():
+        ref = jc.reference_image(scene, **{k: 2 * v for k, v in ref_knobs.items()})
+        print(name, flush=True)
+        measured = reliability(name, kind, scene, ref, args.quick, print)
+        reliable += measured
+        refined += refining(name, kind, scene, ref, measured, print)
+    args.output.mkdir(parents=True, exist_ok=True)
+    plot(reliable, args.output / "estimate.png")
+    write_results(
+        "estimate",
+        reliable,
+        report(reliable, refined),
+        extra=dict(refining=refined, pixels=pixels),
+        out=args.output,
+        env=environment(),
+    )
+
+
+if __name__ == "__main__":
+    main()
