@@ -39,6 +39,22 @@ def _warn_missed(method: Method, missed) -> None:
         )
 
 
+def _warn_limited(limited) -> None:
+    """`warnings.warn` when the scene's interface limit dropped more than
+    `MISSED_FLUX_WARNING` of the light through the object (concrete values only)."""
+    if limited is None or isinstance(limited, jax.core.Tracer):
+        return
+    worst = float(np.nanmax(np.asarray(limited, float), initial=0.0))
+    if worst > MISSED_FLUX_WARNING:
+        warnings.warn(
+            f"render: the scene's interface limit dropped {worst:.1%} of the light through "
+            "the object (photons still inside it, or meeting it again, after "
+            "`scene.interfaces` events; `interface_limited_fraction` in the stats): raise "
+            "the MeshScene's `interfaces`",
+            stacklevel=3,
+        )
+
+
 def render(
     scene: WaterScene,
     method: str | Method | None = None,
@@ -78,12 +94,14 @@ def render(
       setting does not fit in memory (then a warning states the error reached).
       ``stats["error_estimate"]`` and ``stats["levels"]`` say what happened. The
       estimate sees only what the refined knob changes, so only methods whose estimate
-      was measured reliable are refined (caustic triangles: lens, mesh and, as a mesh,
-      ellipsoid scenes; ``benchmarks/results/estimate.md``); for others it is refused.
+      was measured reliable are refined (caustic triangles on lens and mesh scenes;
+      ``benchmarks/results/estimate.md``); other methods, and ellipsoids (rendered as
+      meshes, whose tessellation error the estimate misses), are refused.
     - `return_stats`: also return a dict of diagnostics (``missed_flux_fraction`` per
       channel). Whether asked for or not, a two-pass render that leaves out more than
-      1% of the light (beyond its window) or spot lights that do not carry it warn
-      (`warnings.warn`, with the fraction and the knob to change).
+      1% of the light (beyond its window), spot lights that do not carry it, and caustic
+      triangles whose scene's interface limit drops more than 1% of the light through
+      the object warn (`warnings.warn`, with the fraction and the knob to change).
     - `**knobs`: the knobs of the named method (the fields of its class; see `two_pass`,
       `caustic_triangles`, `caustics_mapping`, `adaptive_caustic_map`, `spot_lights`).
 
@@ -134,6 +152,7 @@ def render(
         result = method(scene)
         stats = {"choice": choice}
     _warn_missed(method, result.missed_flux_fraction)
+    _warn_limited(result.stats.get("interface_limited_fraction"))
     if return_stats:
         return result.image, {"missed_flux_fraction": result.missed_flux_fraction} | (
             result.stats | stats

@@ -40,6 +40,10 @@ class Photons(eqx.Module):
     - `valid`: ``(channels, rows, cols)``, the photon reached the screen through the
       generator.
     - `cell_area`: area of one emission-grid cell, m^2 (scalar).
+    - `limited`: ``(channels, rows, cols)``, the flux per unit emission area of photons
+      the scene's interface limit dropped (mesh scenes: they met the object again after
+      ``scene.interfaces`` events, or were still inside it); ``None`` where no limit
+      applies (lens slabs).
     """
 
     position: Float[Array, "channels rows cols 3"]
@@ -47,6 +51,7 @@ class Photons(eqx.Module):
     density: Float[Array, "channels rows cols"]
     valid: Bool[Array, "channels rows cols"]
     cell_area: Float[Array, ""]
+    limited: Float[Array, "channels rows cols"] | None = None
 
     @property
     def grid_shape(self) -> tuple[int, int]:
@@ -61,7 +66,9 @@ class Photons(eqx.Module):
         return self.density * self.cell_area * wy[:, None] * wx[None, :]
 
 
-def _stack_channels(positions, directions, densities, valids, cell_area, dtype) -> Photons:
+def _stack_channels(
+    positions, directions, densities, valids, cell_area, dtype, limited=None
+) -> Photons:
     """`Photons` from per-channel lists (channels first)."""
     return Photons(
         jnp.stack(positions),
@@ -69,6 +76,7 @@ def _stack_channels(positions, directions, densities, valids, cell_area, dtype) 
         jnp.stack(densities),
         jnp.stack(valids),
         jnp.asarray(cell_area, dtype),
+        None if limited is None else jnp.stack(limited),
     )
 
 
@@ -99,11 +107,14 @@ def _clip_band(photons: Photons, grid, band) -> Photons:
         return photons
     inside = band_rows(grid, band)[None, :, None]
     valid = photons.valid & inside
-    return eqx.tree_at(
+    photons = eqx.tree_at(
         lambda p: (p.valid, p.density),
         photons,
         (valid, jnp.where(valid, photons.density, 0.0)),
     )
+    if photons.limited is None:
+        return photons
+    return eqx.tree_at(lambda p: p.limited, photons, jnp.where(inside, photons.limited, 0.0))
 
 
 def _normalise(v):
@@ -262,13 +273,15 @@ def mesh_photons(
         density = scene.light.intensity * jnp.abs(d0 @ axis) / r2
 
     rows, cols = u.shape
-    positions, directions, densities, valids = [], [], [], []
-    for landed, d, flux, alive in trace_mesh_rays(scene, o0, d0, density, batch_size, terminal):
+    positions, directions, densities, valids, limited = [], [], [], [], []
+    paths = trace_mesh_rays(scene, o0, d0, density, batch_size, terminal)
+    for landed, d, flux, alive, dropped in paths:
         positions.append(landed.reshape(rows, cols, 3))
         directions.append(d.reshape(rows, cols, 3))
         densities.append(flux.reshape(rows, cols))
         valids.append(alive.reshape(rows, cols))
-    photons = _stack_channels(positions, directions, densities, valids, cell_area, dtype)
+        limited.append(dropped.reshape(rows, cols))
+    photons = _stack_channels(positions, directions, densities, valids, cell_area, dtype, limited)
     return _clip_band(photons, grid, band)
 
 
@@ -285,7 +298,9 @@ def trace_mesh_rays(
     Rays start at `o0` (before the generator) going along unit `d0`, carrying `density`
     (flux, or flux per emission area). See `mesh_photons` for the path rules and for
     `terminal`. **Returns:** one ``(landed (P, 3), direction (P, 3), flux (P,),
-    valid (P,))`` per index of refraction; ``flux`` is 0 where not valid.
+    valid (P,), limited (P,))`` per index of refraction; ``flux`` is 0 where not valid;
+    ``limited`` is the flux of the rays the interface limit dropped (they met the
+    generator again after ``scene.interfaces`` events, or were still inside it), else 0.
     """
     dtype = o0.dtype
     radius = emission_frame(scene, dtype)[1]
@@ -360,6 +375,7 @@ def trace_mesh_rays(
         # the path needs more interfaces than allowed if it meets the generator again
         t_near, _ = nearest_hits(o, d, triangles, eps, batch_size, last, tree)
         hit = jnp.isfinite(t_near) & ~left
+        limited = jnp.where(alive & (hit | inside), flux, 0.0)
         alive = alive & ~hit
         alive = alive & ~inside
         if terminal is None:
@@ -371,5 +387,5 @@ def trace_mesh_rays(
         else:
             landed, found = terminal(o, d)
             alive = alive & found
-        paths.append((landed, d, jnp.where(alive, flux, 0.0), alive))
+        paths.append((landed, d, jnp.where(alive, flux, 0.0), alive, limited))
     return paths

@@ -191,7 +191,7 @@ def _mesh_exit_rays(scene: MeshScene, direction, n: int, channel: int) -> ExitRa
     def leave(origin, dirn):  # the rays end where they leave the object
         return origin, jnp.ones(origin.shape[:1], bool)
 
-    ((o, d, energy, _),) = trace_mesh_rays(single, o0, d0, density, terminal=leave)
+    ((o, d, energy, _, _),) = trace_mesh_rays(single, o0, d0, density, terminal=leave)
     lo, hi = verts.min(axis=0), verts.max(axis=0)
     return ExitRays(o, d, energy, spacing, 0.5 * (lo + hi), jnp.max(hi - lo))
 

@@ -130,6 +130,7 @@ class _Triangles(eqx.Module):
     pixels: Float[Array, "C T 3 2"]
     flux: Float[Array, "C T"]
     valid: Bool[Array, "C T"]
+    limited: Float[Array, "C T"]  # flux the interface limit dropped, by its vertices
 
 
 def _screen_triangles(photons: Photons, extent, shape) -> _Triangles:
@@ -137,7 +138,11 @@ def _screen_triangles(photons: Photons, extent, shape) -> _Triangles:
     density = grid_triangles(photons.density).mean(axis=-1)
     flux = jnp.where(valid, 0.5 * photons.cell_area * density, 0.0)
     pixels = pixel_coordinates(grid_triangles(photons.position[..., :2]), extent, shape)
-    return _Triangles(pixels, flux, valid)
+    if photons.limited is None:
+        limited = jnp.zeros_like(flux)
+    else:
+        limited = 0.5 * photons.cell_area * grid_triangles(photons.limited).mean(axis=-1)
+    return _Triangles(pixels, flux, valid, limited)
 
 
 def _vertex_irradiance(flux: Array, area: Array, valid: Array, grid, mean_area=None) -> Array:
@@ -180,7 +185,8 @@ def _band_image(
     `batch_size` at a time. `draw` ``(T,)``: which of them to draw (a band's own rows:
     its halo rows only complete the vertex irradiance); `mean_area`: see
     `_vertex_irradiance`. **Returns:** the summed rasteriser output ``(C, rows, cols)``
-    (flux per pixel, or the Gouraud image) and the drawn valid flux ``(C,)``."""
+    (flux per pixel, or the Gouraud image), the drawn valid flux ``(C,)`` and the flux
+    the interface limit dropped from the drawn triangles ``(C,)``."""
     tri = _screen_triangles(photons, extent, shape)
     drawn = tri.valid if draw is None else tri.valid & draw[None]
     if reconstruction == "exact":
@@ -202,28 +208,33 @@ def _band_image(
             for c in range(tri.valid.shape[0])
         ]
     )
-    return images, jnp.where(drawn, tri.flux, 0.0).sum(axis=-1)
+    mine = tri.limited if draw is None else jnp.where(draw[None], tri.limited, 0.0)
+    return images, jnp.where(drawn, tri.flux, 0.0).sum(axis=-1), mine.sum(axis=-1)
 
 
-def _finish(images, total, extent, shape, reconstruction):
-    """Irradiance images and the missed-flux fraction from `_band_image`'s sums."""
+def _finish(images, total, limited, extent, shape, reconstruction):
+    """Irradiance images, the missed-flux fraction and the fraction of the light through
+    the object the interface limit dropped (``limited / (total + limited)``) from
+    `_band_image`'s sums."""
     pixel_area = _pixel_area(extent, shape)
     if reconstruction == "exact":
         # overlap areas are sums of signed edge terms: clear their rounding below zero
         images = jnp.maximum(images / pixel_area, 0.0)
     landed = images.sum(axis=(1, 2)) * pixel_area
     missed = jnp.where(total > 0, 1.0 - landed / jnp.where(total > 0, total, 1.0), 0.0)
-    return images, jnp.clip(missed, 0.0, 1.0)
+    through = total + limited
+    dropped = jnp.where(through > 0, limited / jnp.where(through > 0, through, 1.0), 0.0)
+    return images, jnp.clip(missed, 0.0, 1.0), dropped
 
 
 @eqx.filter_jit
 def _triangles_image(
     photons, extent, shape, reconstruction: str, window: int, supersample: int, batch_size: int
 ):
-    images, total = _band_image(
+    images, total, limited = _band_image(
         photons, extent, shape, reconstruction, window, supersample, batch_size
     )
-    return _finish(images, total, extent, shape, reconstruction)
+    return _finish(images, total, limited, extent, shape, reconstruction)
 
 
 def _extent_histogram(photons: Photons, extent, shape) -> Array:
@@ -308,7 +319,10 @@ def triangles_image(
         raise ValueError("window='auto' needs concrete scene values; under jit/vmap pass an int")
     else:
         window = triangle_window(photons, receiver)
-    return _triangles_image(photons, extent, shape, reconstruction, window, supersample, batch_size)
+    images, missed, _ = _triangles_image(
+        photons, extent, shape, reconstruction, window, supersample, batch_size
+    )
+    return images, missed
 
 
 def splat_photons(photons: Photons, receiver: PlaneReceiver, sigma, window: int | None = None):
@@ -627,8 +641,8 @@ def _banded_image(
             mean_area=mean_area,
         )
 
-    images, total = sum_over_batches(band, (scene, mean_area), cfg.bands, mesh=mesh)
-    return _finish(images, total, extent, shape, reconstruction)
+    images, total, limited = sum_over_batches(band, (scene, mean_area), cfg.bands, mesh=mesh)
+    return _finish(images, total, limited, extent, shape, reconstruction)
 
 
 class CausticTriangles(Method):
@@ -904,14 +918,15 @@ def caustic_triangles(
     triangle_batch = -(-band_triangles // -(-band_triangles // triangle_batch))
     check_photon_work(grid[0] * grid[1], bands * -(-band_triangles // triangle_batch), "photons")
     if not banded:
-        images, missed = _triangles_image(
+        images, missed, limited = _triangles_image(
             ph, receiver.extent, receiver.shape, reconstruction, window, supersample, triangle_batch
         )
     else:
-        images, missed = _banded_image(
+        images, missed, limited = _banded_image(
             scene, cfg, mean_area, reconstruction, window, supersample, triangle_batch, mesh
         )
     stats = {
+        "interface_limited_fraction": limited,
         "bands": bands,
         "batches": bands * -(-band_triangles // triangle_batch),
         "triangle_batch": triangle_batch,
