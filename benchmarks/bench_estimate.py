@@ -132,10 +132,14 @@ def refining(name, kind, scene, ref, measured: list[dict], log) -> list[dict]:
 
 
 def plot(rows: list[dict], path: Path) -> None:
-    fig, ax = plt.subplots(figsize=(5.5, 4.5))
-    for kind in sorted({r["kind"] for r in rows}):
-        mine = [r for r in rows if r["kind"] == kind]
-        ax.loglog([r["estimate"] for r in mine], [r["true"] for r in mine], "o", label=kind)
+    fig, ax = plt.subplots(figsize=(8.0, 4.5))
+
+    def label(r):  # the method's class, and the scene kind
+        return f"{r['method'].split('(')[0]} ({r['kind']})"
+
+    for name in sorted({label(r) for r in rows}):
+        mine = [r for r in rows if label(r) == name]
+        ax.loglog([r["estimate"] for r in mine], [r["true"] for r in mine], "o", label=name)
     low = min(min(r["estimate"], r["true"]) for r in rows) / 2
     high = max(max(r["estimate"], r["true"]) for r in rows) * 2
     ax.plot([low, high], [low, high], "k-", lw=0.8, label="true = estimate")
@@ -143,7 +147,7 @@ def plot(rows: list[dict], path: Path) -> None:
     ax.set_xlabel("estimated error (two settings)")
     ax.set_ylabel("true error (against the reference)")
     ax.set_title("Error estimates on held-out scenes")
-    ax.legend(fontsize=7)
+    ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.02, 1.0))
     fig.tight_layout()
     fig.savefig(path, dpi=90)
     plt.close(fig)
