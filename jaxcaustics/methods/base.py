@@ -18,6 +18,7 @@ from typing import Any, ClassVar
 
 import equinox as eqx
 import jax.numpy as jnp
+import numpy as np
 from jaxtyping import Array, Float
 
 
@@ -35,6 +36,11 @@ class RenderResult(eqx.Module):
     image: Float[Array, "rows cols *channels"]
     missed_flux_fraction: Float[Array, " channels"]
     stats: dict[str, Any]
+
+
+def worst(fractions) -> float:
+    """The largest of per-channel `fractions` (missed flux, ...), 0 for none."""
+    return float(np.nanmax(np.asarray(fractions, float), initial=0.0))
 
 
 def is_multichannel(scene) -> bool:

@@ -27,7 +27,7 @@ import warnings
 import numpy as np
 
 from .._checks import check_number
-from .base import Method, RenderResult
+from .base import Method, RenderResult, worst
 from .choose import (
     Choice,
     accuracy_table,
@@ -62,15 +62,10 @@ class ErrorEstimate:
     fine: Method
 
 
-def _model_missed(method: Method, result: RenderResult) -> float:
-    if method.missed_advice is None:
-        return 0.0
-    return float(np.nanmax(np.asarray(result.missed_flux_fraction, float), initial=0.0))
-
-
-def _compare(scene, coarse: Method, low: RenderResult, fine: Method, high: RenderResult):
+def _compare(coarse: Method, low: RenderResult, fine: Method, high: RenderResult):
     difference = image_error(np.asarray(low.image), np.asarray(high.image))
-    missed = _model_missed(fine, high)
+    # light the model leaves out at every setting (not light landing off the receiver)
+    missed = 0.0 if fine.missed_advice is None else worst(high.missed_flux_fraction)
     return ErrorEstimate(difference + missed, difference, missed, coarse, fine)
 
 
@@ -90,7 +85,7 @@ def estimate_error(scene, method: Method) -> tuple[RenderResult, ErrorEstimate]:
     if coarse is None:
         coarse, fine = method, method.refined()
     low, high = coarse(scene), fine(scene)
-    return high, _compare(scene, coarse, low, fine, high)
+    return high, _compare(coarse, low, fine, high)
 
 
 def _start(scene, tolerance: float, name: str | None, margin: float) -> Choice | None:
@@ -188,7 +183,7 @@ def refine_to_tolerance(
                 raise
             stop = f"a finer setting does not fit in memory ({err})"
             break
-        estimate = _compare(scene, estimate.fine, result, finer, higher)
+        estimate = _compare(estimate.fine, result, finer, higher)
         result = higher
         levels.append(estimate)
     met = estimate.error <= tolerance

@@ -7,11 +7,10 @@ import warnings
 from typing import Any
 
 import jax
-import numpy as np
 
 from .._checks import check_bool, check_number
 from ..scene.scene import WaterScene
-from .base import Method
+from .base import Method, worst
 from .choose import DEFAULT_MARGIN, as_mesh_scene, choose_method
 from .refine import DEFAULT_BUDGET_S, refine_to_tolerance
 from .registry import as_method, method_class
@@ -29,10 +28,10 @@ def _warn_missed(method: Method, missed) -> None:
     fraction is in the result alone)."""
     if method.missed_advice is None or isinstance(missed, jax.core.Tracer):
         return
-    worst = float(np.nanmax(np.asarray(missed, float), initial=0.0))
-    if worst > MISSED_FLUX_WARNING:
+    largest = worst(missed)
+    if largest > MISSED_FLUX_WARNING:
         warnings.warn(
-            f"render: method {method.name!r} missed {worst:.1%} of the light (the image is "
+            f"render: method {method.name!r} missed {largest:.1%} of the light (the image is "
             f"that much too dark; `missed_flux_fraction` in the stats): "
             f"{method.missed_advice}",
             stacklevel=3,
@@ -44,10 +43,10 @@ def _warn_limited(limited) -> None:
     `MISSED_FLUX_WARNING` of the light through the object (concrete values only)."""
     if limited is None or isinstance(limited, jax.core.Tracer):
         return
-    worst = float(np.nanmax(np.asarray(limited, float), initial=0.0))
-    if worst > MISSED_FLUX_WARNING:
+    largest = worst(limited)
+    if largest > MISSED_FLUX_WARNING:
         warnings.warn(
-            f"render: the scene's interface limit dropped {worst:.1%} of the light through "
+            f"render: the scene's interface limit dropped {largest:.1%} of the light through "
             "the object (photons still inside it, or meeting it again, after "
             "`scene.interfaces` events; `interface_limited_fraction` in the stats): raise "
             "the MeshScene's `interfaces`",
