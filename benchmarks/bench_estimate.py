@@ -13,7 +13,7 @@ plus the held-out sea under light 0 and 60 degrees from vertical):
    call, compilation included: refining compiles every level it renders), beside the
    fastest table setting whose finer image met t (median of 3 after compiling).
 
-Run ``python benchmarks/bench_estimate.py`` (about 15 minutes on 2 cores) or ``--quick``;
+Run ``python benchmarks/bench_estimate.py`` (about 10 minutes on 2 cores) or ``--quick``;
 writes ``estimate.md``, ``estimate.json`` and ``estimate.png`` to ``--output``.
 """
 

@@ -102,3 +102,11 @@ def test_an_ellipsoid_is_not_refined_as_a_mesh():
     )
     with pytest.raises(ValueError, match="an ellipsoid only as a mesh"):
         jc.render(ball, tolerance=0.05, refine=True)
+
+
+def test_a_configured_method_is_not_silently_replaced_by_the_tolerance_choice():
+    with pytest.raises(ValueError, match="`tolerance` picks the knobs: pass the method's name"):
+        jc.render(lens(), jc.CausticTriangles(photons=9), tolerance=0.05)
+    # a default instance says only which method
+    image = jc.render(lens(), jc.CausticTriangles(), tolerance=0.05, refine=True)
+    assert image.shape == (24, 24)

@@ -150,9 +150,9 @@ def refine_to_tolerance(
     table's guess (`choose_method` with `margin`) among the methods whose error estimate
     is reliable (`Method.estimate_is_reliable`: caustic triangles; `method` must be one),
     estimate its error on this scene (`estimate_error`)
-    and refine its accuracy knob until the estimate is within `tolerance`, or `budget_s`
-    seconds have passed, or a finer setting does not fit in memory (then `warnings.warn`
-    with the error reached).
+    and refine its accuracy knob until the estimate is within `tolerance`, or the next
+    level (about four times the last) would end past `budget_s` seconds, or a finer
+    setting does not fit in memory (then `warnings.warn` with the error reached).
 
     **Returns:** ``(result, info)``: the finest render and ``{"choice": the table's
     Choice, "method": the Method rendered, "error_estimate": its estimated error,
@@ -171,9 +171,16 @@ def refine_to_tolerance(
     result, estimate = estimate_error(scene, guess)
     levels = [estimate]
     stop = None
+    last = time.perf_counter() - start  # the last level's seconds (both renders, first)
     while estimate.error > tolerance:
-        if time.perf_counter() - start > budget_s:
-            stop = f"the time budget ({budget_s:g} s) was spent"
+        # a finer level costs about 4 times the last (twice the samples along each side):
+        # not started if it would end past the budget
+        elapsed = time.perf_counter() - start
+        if elapsed + 4.0 * last > budget_s:
+            stop = (
+                f"the time budget ({budget_s:g} s) would be spent: {elapsed:.3g} s so far, "
+                f"the next level about {4.0 * last:.3g} s"
+            )
             break
         finer = estimate.fine.refined()
         try:
@@ -184,6 +191,7 @@ def refine_to_tolerance(
             stop = f"a finer setting does not fit in memory ({err})"
             break
         estimate = _compare(estimate.fine, result, finer, higher)
+        last = time.perf_counter() - start - elapsed
         result = higher
         levels.append(estimate)
     met = estimate.error <= tolerance

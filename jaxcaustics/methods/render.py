@@ -6,6 +6,7 @@ import logging
 import warnings
 from typing import Any
 
+import equinox as eqx
 import jax
 
 from .._checks import check_bool, check_number
@@ -124,12 +125,17 @@ def render(
                 raise ValueError(f"`{name}` applies only with `tolerance`")
     elif knobs:
         raise ValueError(f"`tolerance` picks the knobs: do not pass {sorted(knobs)} with it")
+    elif isinstance(method, Method) and not eqx.tree_equal(method, type(method)()):
+        raise ValueError(
+            f"`tolerance` picks the knobs: pass the method's name ({method.name!r}) or a "
+            f"default {type(method).__name__}(), not {method!r}"
+        )
+    name = method.name if isinstance(method, Method) else method
     stats: dict[str, Any] = {}
     if tolerance is None:
         method = as_method(method, knobs, scene)
         result = method(scene)
     elif refine:
-        name = method.name if isinstance(method, Method) else method
         margin = check_number(1.0 if margin is None else margin, "margin", low=1.0)
         budget_s = DEFAULT_BUDGET_S if budget_s is None else budget_s
         result, info = refine_to_tolerance(
@@ -141,7 +147,6 @@ def render(
     else:
         if budget_s is not None:
             raise ValueError("`budget_s` applies only with `refine=True`")
-        name = method.name if isinstance(method, Method) else method
         margin = DEFAULT_MARGIN if margin is None else margin
         choice = choose_method(scene, tolerance, method=name, margin=margin)
         logger.info("render: %s", choice)
