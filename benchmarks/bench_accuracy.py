@@ -80,10 +80,10 @@ PER_PIXEL_KNOBS = {name: cls.resolution_knobs for name, cls in METHODS.items()}
 # per-pixel for the table), as_mesh subdivisions or None)
 
 
-def _water_rows(windows, supersamples, iterations):
+def _water_rows(windows, supersamples, iterations, auto_supersamples=()):
     rows = []
     for window in windows:
-        for s in supersamples:
+        for s in supersamples + (auto_supersamples if window == "auto" else ()):
             n, m = ("auto", "auto") if window == "auto" else window
             knobs = dict(samples_x=n, channels_y=m, supersample=s, hit_iterations=3)
             rows.append(("twopass", knobs, None))
@@ -131,7 +131,7 @@ CONFIGS = {
         repeats=5,
         budget_s=10.0,
         water=dict(
-            rows=_water_rows([(3, 2), (5, 4), (7, 6), "auto"], [1, 2, 4], [0, 1]),
+            rows=_water_rows([(3, 2), (5, 4), (7, 6), "auto"], (1, 2, 4), [0, 1], (8,)),
             reference=[1, 2, 4, 8, 16],
             truth=32,
         ),
@@ -162,7 +162,7 @@ CONFIGS = {
         pixels=24,
         repeats=3,
         budget_s=2.0,
-        water=dict(rows=_water_rows([(3, 2), "auto"], [1], []), reference=[1, 2], truth=4),
+        water=dict(rows=_water_rows([(3, 2), "auto"], (1,), []), reference=[1, 2], truth=4),
         lens=dict(rows=_lens_rows([13]), reference=[64, 128], truth=256),
         mesh=dict(rows=_mesh_rows([13], [64], [64], [16]), reference=[32, 64], truth=128),
         moving_light=dict(
