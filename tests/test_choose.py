@@ -204,7 +204,8 @@ def test_render_with_tolerance_runs_the_choice_and_reports_it(monkeypatch, caplo
     monkeypatch.setattr(jc.methods.choose, "_packaged_table", lambda: TABLE)
     scene = water()
     with caplog.at_level(logging.INFO, logger="jaxcaustics"):
-        image, stats = jc.render(scene, tolerance=0.06, return_stats=True)
+        # refine=False: the table's choice (water is refined by default)
+        image, stats = jc.render(scene, tolerance=0.06, refine=False, return_stats=True)
     assert stats["choice"].knobs == {"supersample": 2}
     assert "twopass" in caplog.text and "expected error" in caplog.text
     np.testing.assert_array_equal(np.asarray(image), np.asarray(jc.render(scene, supersample=2)))

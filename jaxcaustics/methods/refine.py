@@ -11,11 +11,15 @@ error; for faster convergence it over-estimates it (three times for second order
 noise it is at least it. Light the method's model leaves out whatever the setting (the
 two-pass window's missed flux, light the spot lights do not carry) is added, as it is in
 both images. The estimate's reliability against the NumPy reference on held-out scenes is
-measured by ``benchmarks/bench_estimate.py``: it holds for caustic triangles; for the
-two-pass method (its window and the pixel-sized footprint of its samples), the caustic
-maps (their splats) and the spot lights (their model) most of the error is common to all
-settings, and the difference under-states it several times. Only methods with
-`Method.estimate_is_reliable` are refined to a tolerance.
+measured by ``benchmarks/bench_estimate.py``: it holds for the two-pass method (whose
+sub-samples each cover their own part of the pixel, so that refining converges to the
+exact image, and whose refining adds a Newton step to the hit) and for caustic
+triangles; for the caustic maps (their splats) and the spot lights (their model) most of
+the error is common to all settings, and the difference under-states it several times.
+An ellipsoid rendered as a mesh refines its tessellation together with the photon grid
+(with a fixed tessellation, its error was common to both settings and the estimate
+under-stated it 1.7 times). Only methods with `Method.estimate_is_reliable` are refined
+to a tolerance.
 """
 
 from __future__ import annotations
@@ -53,6 +57,8 @@ class ErrorEstimate:
     - `missed`: the largest per-channel fraction of the light the finer render's model
       left out (0 for methods whose missed flux is light landing off the receiver).
     - `coarse`, `fine`: the two settings rendered.
+    - `coarse_subdivisions`, `fine_subdivisions`: for an ellipsoid rendered as a mesh,
+      the tessellations (`Ellipsoid.to_mesh`) of the two renders; else ``None``.
     """
 
     error: float
@@ -60,13 +66,15 @@ class ErrorEstimate:
     missed: float
     coarse: Method
     fine: Method
+    coarse_subdivisions: int | None = None
+    fine_subdivisions: int | None = None
 
 
-def _compare(coarse: Method, low: RenderResult, fine: Method, high: RenderResult):
+def _compare(coarse: Method, low: RenderResult, fine: Method, high: RenderResult, meshes=()):
     difference = image_error(np.asarray(low.image), np.asarray(high.image))
     # light the model leaves out at every setting (not light landing off the receiver)
     missed = 0.0 if fine.missed_advice is None else worst(high.missed_flux_fraction)
-    return ErrorEstimate(difference + missed, difference, missed, coarse, fine)
+    return ErrorEstimate(difference + missed, difference, missed, coarse, fine, *meshes)
 
 
 def estimate_error(scene, method: Method) -> tuple[RenderResult, ErrorEstimate]:
@@ -108,34 +116,50 @@ def _most_accurate(scene, tolerance: float, name: str | None, margin: float) -> 
     return choose_method(scene, best["error"] * margin * (1 + 1e-9), method=name, margin=margin)
 
 
-def _reliable_method(scene, name: str | None) -> str:
-    """`name`, or the first method whose estimate is reliable that the table has for
-    `scene`; a `ValueError` when there is none (an unreliable estimate would let a
-    refined render miss its tolerance unsaid)."""
+def refinable_method(scene, name: str | None) -> tuple[str | None, str]:
+    """``(method, "")``: `name`, or the first method whose error estimate is reliable
+    (`Method.estimate_is_reliable`) that the accuracy table has for `scene`; or
+    ``(None, why)`` when there is none (an unreliable estimate would let a refined
+    render miss its tolerance unsaid)."""
     reliable = [n for n, cls in METHODS.items() if cls.estimate_is_reliable]
     if name is not None and name not in reliable:
-        raise ValueError(
-            f"`refine`: the error estimate of method {name!r} was measured to under-state "
-            "its error (it does not see what all its settings share: the two-pass window "
-            "and sample footprint, the caustic maps' splats and the spot lights' model); "
-            f"refining is for {reliable}: pass one of them, or `refine=False`"
+        return None, (
+            f"the error estimate of method {name!r} was measured to under-state its error "
+            "(it does not see what all its settings share: the caustic maps' splats, the "
+            f"spot lights' model); refining is for {reliable}"
         )
     rows = accuracy_table()["kinds"][scene_kind(scene)]["rows"]
     for candidate in [name] if name else reliable:
-        # not on an ellipsoid's mesh: the tessellation's error is common to every photon
-        # grid, and the estimate under-stated it 1.7 times (bench_estimate.py)
-        ours = [
-            r
-            for r in rows
-            if r["method"] == candidate and r.get("choosable", True) and not r.get("as_mesh")
-        ]
+        ours = [r for r in rows if r["method"] == candidate and r.get("choosable", True)]
         if allowed_rows(scene, ours)[0]:
-            return candidate
-    raise ValueError(
-        f"`refine`: no method whose error estimate is reliable ({reliable}) renders this "
-        f"{scene_kind(scene)} scene itself (an ellipsoid only as a mesh, whose tessellation "
-        "error the estimate does not see); pass `refine=False` (the accuracy table's choice)"
+            return candidate, ""
+    return None, (
+        f"no method whose error estimate is reliable ({reliable}) renders this "
+        f"{scene_kind(scene)} scene"
     )
+
+
+def _render_level(scene, method: Method, subdivisions: int | None) -> RenderResult:
+    """`method` on `scene`, or on its ellipsoid as a mesh of `subdivisions`."""
+    return method(scene if subdivisions is None else as_mesh_scene(scene, subdivisions))
+
+
+def _on_mesh(subdivisions: int | None) -> str:
+    return (
+        "" if subdivisions is None else f" on the ellipsoid's mesh of {subdivisions} subdivisions"
+    )
+
+
+def _first_pair(guess: Method, subdivisions: int | None):
+    """``((coarse, its subdivisions), (fine, its subdivisions))`` around the table's
+    guess: the guess and its coarser setting (one tessellation level fewer for an
+    ellipsoid's mesh, so that the difference sees the tessellation's error too), or at
+    the coarsest the guess and its finer setting."""
+    coarse = guess.coarsened()
+    if coarse is not None and subdivisions != 0:
+        return (coarse, None if subdivisions is None else subdivisions - 1), (guess, subdivisions)
+    finer = None if subdivisions is None else subdivisions + 1
+    return (guess, subdivisions), (guess.refined(), finer)
 
 
 def refine_to_tolerance(
@@ -148,27 +172,37 @@ def refine_to_tolerance(
 ) -> tuple[RenderResult, dict]:
     """What ``render(scene, tolerance=t, refine=True)`` does: start from the accuracy
     table's guess (`choose_method` with `margin`) among the methods whose error estimate
-    is reliable (`Method.estimate_is_reliable`: caustic triangles; `method` must be one),
+    is reliable (`Method.estimate_is_reliable`: two-pass and caustic triangles; `method`
+    must be one),
     estimate its error on this scene (`estimate_error`)
     and refine its accuracy knob until the estimate is within `tolerance`, or the next
     level (about four times the last) would end past `budget_s` seconds, or a finer
     setting does not fit in memory (then `warnings.warn` with the error reached).
 
+    An ellipsoid (rendered through its mesh) refines its tessellation with the knob:
+    each level one subdivision more (`Ellipsoid.to_mesh`), so that the estimate sees the
+    tessellation's error as well as the photon grid's.
+
     **Returns:** ``(result, info)``: the finest render and ``{"choice": the table's
-    Choice, "method": the Method rendered, "error_estimate": its estimated error,
-    "levels": [ErrorEstimate, ...] one per comparison, "met": bool}``.
+    Choice, "method": the Method rendered, "subdivisions": its ellipsoid's tessellation
+    (``None`` for other scenes), "error_estimate": its estimated error, "levels":
+    [ErrorEstimate, ...] one per comparison, "met": bool}``.
     """
     tolerance = check_number(tolerance, "tolerance", low=0.0, low_open=True)
     budget_s = check_number(budget_s, "budget_s", low=0.0, low_open=True)
-    method = _reliable_method(scene, method)
+    method, why = refinable_method(scene, method)
+    if method is None:
+        raise ValueError(f"`refine`: {why}; pass `refine=False` (the accuracy table's choice)")
     choice = _start(scene, tolerance, method, margin)
     if choice is None:
         choice = _most_accurate(scene, tolerance, method, margin)
-    if choice.as_mesh:
-        scene = as_mesh_scene(scene, choice.as_mesh["subdivisions"])
+    subdivisions = choice.as_mesh["subdivisions"] if choice.as_mesh else None
     start = time.perf_counter()
     guess = method_class(choice.method).from_knobs(**choice.knobs)
-    result, estimate = estimate_error(scene, guess)
+    (coarse, coarse_sub), (fine, fine_sub) = _first_pair(guess, subdivisions)
+    low = _render_level(scene, coarse, coarse_sub)
+    result = _render_level(scene, fine, fine_sub)
+    estimate = _compare(coarse, low, fine, result, (coarse_sub, fine_sub))
     levels = [estimate]
     stop = None
     last = time.perf_counter() - start  # the last level's seconds (both renders, first)
@@ -183,27 +217,29 @@ def refine_to_tolerance(
             )
             break
         finer = estimate.fine.refined()
+        finer_sub = None if fine_sub is None else fine_sub + 1
         try:
-            higher = finer(scene)
+            higher = _render_level(scene, finer, finer_sub)
         except ValueError as err:  # a finer setting over the memory limit (checked first)
             if "memory_limit" not in str(err):
                 raise
             stop = f"a finer setting does not fit in memory ({err})"
             break
-        estimate = _compare(estimate.fine, result, finer, higher)
+        estimate = _compare(estimate.fine, result, finer, higher, (fine_sub, finer_sub))
         last = time.perf_counter() - start - elapsed
-        result = higher
+        result, fine_sub = higher, finer_sub
         levels.append(estimate)
     met = estimate.error <= tolerance
     if not met:
         warnings.warn(
             f"render: tolerance {tolerance:g} not met: the estimated error is "
-            f"{estimate.error:.3g} with {estimate.fine!r} ({stop})",
+            f"{estimate.error:.3g} with {estimate.fine!r}{_on_mesh(fine_sub)} ({stop})",
             stacklevel=3,
         )
     info = {
         "choice": choice,
         "method": estimate.fine,
+        "subdivisions": fine_sub,
         "error_estimate": estimate.error,
         "levels": levels,
         "met": met,

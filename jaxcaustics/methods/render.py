@@ -13,7 +13,7 @@ from .._checks import check_bool, check_number
 from ..scene.scene import WaterScene
 from .base import Method, worst
 from .choose import DEFAULT_MARGIN, as_mesh_scene, choose_method
-from .refine import DEFAULT_BUDGET_S, refine_to_tolerance
+from .refine import DEFAULT_BUDGET_S, refinable_method, refine_to_tolerance
 from .registry import as_method, method_class
 
 logger = logging.getLogger("jaxcaustics")
@@ -61,7 +61,7 @@ def render(
     *,
     tolerance: float | None = None,
     margin: float | None = None,
-    refine: bool = False,
+    refine: bool | None = None,
     budget_s: float | None = None,
     return_stats: bool = False,
     **knobs: Any,
@@ -80,23 +80,25 @@ def render(
       (then no `**knobs`). Default: the scene's natural method (``"twopass"`` for water,
       ``"spot_lights"`` for ellipsoids, ``"triangles"`` otherwise).
     - `tolerance`: instead of naming knobs, ask for an error against the reference
-      (relative L1 after a 1-pixel Gaussian blur of both images, `image_error`): the
-      fastest measured method and knobs expected to meet it are picked (`choose_method`;
-      with `method` given, that method's knobs). The choice is logged (logger
+      (relative L1 after a 1-pixel Gaussian blur of both images, `image_error`). Where
+      a method whose error estimate is reliable renders the scene (two-pass on water,
+      caustic triangles on lens, mesh and ellipsoid scenes), the render is *refined* on
+      the scene at hand (`refine`); elsewhere (`method` one of the others) the
+      fastest method and knobs that the accuracy table expects to meet it are picked
+      (`choose_method`, with `margin`, default 2). The choice is logged (logger
       ``"jaxcaustics"``, level INFO) and, with `return_stats`, returned as
       ``stats["choice"]`` (a `Choice`: method, knobs, expected error and time).
-      `margin`: see `choose_method` (default 2).
-    - `refine`: with `tolerance`, measure instead of trusting the table: the table's
-      guess (`margin` default 1) and the next coarser setting of its accuracy knob are
-      rendered, their difference estimates the error on this scene (`estimate_error`),
-      and the knob is refined until the estimate is within `tolerance`
-      (`refine_to_tolerance`), or `budget_s` seconds (default 120) are spent or a finer
-      setting does not fit in memory (then a warning states the error reached).
-      ``stats["error_estimate"]`` and ``stats["levels"]`` say what happened. The
-      estimate sees only what the refined knob changes, so only methods whose estimate
-      was measured reliable are refined (caustic triangles on lens and mesh scenes;
-      ``benchmarks/results/estimate.md``); other methods, and ellipsoids (rendered as
-      meshes, whose tessellation error the estimate misses), are refused.
+    - `refine`: with `tolerance`; ``None`` (the default) refines wherever a reliable
+      estimate exists, ``True`` insists (a `ValueError` says why where it cannot),
+      ``False`` trusts the table. Refining starts from the table's guess (`margin`
+      default 1), renders it and the next coarser setting of its accuracy knob, whose
+      difference estimates the error on this scene (`estimate_error`), and refines the
+      knob until the estimate is within `tolerance` (`refine_to_tolerance`), or the
+      next level would end past `budget_s` seconds (default 120) or not fit in memory
+      (then a warning states the error reached). ``stats["error_estimate"]`` and
+      ``stats["levels"]`` say what happened. Only methods whose estimate was measured
+      reliable are refined (``benchmarks/results/estimate.md``): not the caustic maps
+      or spot lights. An ellipsoid (rendered as a mesh) refines its tessellation too.
     - `return_stats`: also return a dict of diagnostics (``missed_flux_fraction`` per
       channel). Whether asked for or not, a two-pass render that leaves out more than
       1% of the light (beyond its window), spot lights that do not carry it, and caustic
@@ -116,7 +118,8 @@ def render(
     channels)`` for a sequence of indices. With `return_stats`, ``(image, stats)``.
     """
     return_stats = check_bool(return_stats, "return_stats")
-    refine = check_bool(refine, "refine")
+    if refine is not None:
+        refine = check_bool(refine, "refine")
     if method is not None and not isinstance(method, Method):
         method_class(method)  # the name checked before anything is chosen or compiled
     if tolerance is None:
@@ -135,7 +138,7 @@ def render(
     if tolerance is None:
         method = as_method(method, knobs, scene)
         result = method(scene)
-    elif refine:
+    elif refine or (refine is None and refinable_method(scene, name)[0] is not None):
         margin = check_number(1.0 if margin is None else margin, "margin", low=1.0)
         budget_s = DEFAULT_BUDGET_S if budget_s is None else budget_s
         result, info = refine_to_tolerance(
@@ -143,10 +146,10 @@ def render(
         )
         method = info["method"]
         logger.info("render: %s, refined to %r", info["choice"], method)
-        stats = {k: info[k] for k in ("choice", "error_estimate", "levels")}
+        stats = {k: info[k] for k in ("choice", "subdivisions", "error_estimate", "levels")}
     else:
         if budget_s is not None:
-            raise ValueError("`budget_s` applies only with `refine=True`")
+            raise ValueError("`budget_s` applies only when refining (`refine`)")
         margin = DEFAULT_MARGIN if margin is None else margin
         choice = choose_method(scene, tolerance, method=name, margin=margin)
         logger.info("render: %s", choice)

@@ -366,6 +366,7 @@ class TwoPass(Method):
 
     name: ClassVar[str] = "twopass"
     scene_types: ClassVar[tuple[type, ...]] = (WaterScene,)
+    estimate_is_reliable: ClassVar[bool] = True
     missed_advice: ClassVar[str | None] = (
         "it lands beyond the window of samples_x x (channels_y + 1) pixels around its "
         "illumination centre; pass samples_x='auto', channels_y='auto' (the window sized "
@@ -404,13 +405,23 @@ class TwoPass(Method):
         )
 
     def refined(self) -> TwoPass:
-        """Twice the samples per pixel side (`supersample`)."""
-        return dataclasses.replace(self, supersample=2 * self.supersample)
+        """Twice the samples per pixel side (`supersample`) and one more Newton step
+        (`hit_iterations`), so that the difference of two settings sees both the
+        footprint's error and the hit's."""
+        return dataclasses.replace(
+            self,
+            supersample=2 * self.supersample,
+            hit_iterations=min(self.hit_iterations + 1, MAX_HIT_ITERATIONS),
+        )
 
     def coarsened(self) -> TwoPass | None:
-        if self.supersample % 2:
+        """Half the samples per pixel side and one Newton step less; ``None`` for an
+        odd `supersample` or no Newton steps."""
+        if self.supersample % 2 or self.hit_iterations == 0:
             return None
-        return dataclasses.replace(self, supersample=self.supersample // 2)
+        return dataclasses.replace(
+            self, supersample=self.supersample // 2, hit_iterations=self.hit_iterations - 1
+        )
 
     def trace(self, scene) -> TwoPassResult:
         return two_pass(scene, **self.knobs())
