@@ -324,6 +324,15 @@ def transfers(method: str, knobs: dict) -> bool:
     return method != "spot_lights"
 
 
+def estimate_of(scene, method: str, knobs: dict, as_mesh) -> dict:
+    """The method's own error estimate (`jc.estimate_error`: this setting against its
+    next coarser one, with one subdivision fewer for an ellipsoid's mesh) and whether it
+    is this setting's (``False``: at the coarsest, the estimate of the next finer one)."""
+    instance = METHODS[method].from_knobs(**knobs)
+    _, estimate = jc.estimate_error(scene, instance, subdivisions=as_mesh)
+    return dict(estimate=estimate.error, estimate_of_row=bool(estimate.fine == instance))
+
+
 def measure_row(scene, truth, method, knobs, as_mesh, config) -> dict:
     pixels = max(scene.receiver.shape)
     row = dict(
@@ -349,6 +358,7 @@ def measure_row(scene, truth, method, knobs, as_mesh, config) -> dict:
         runs=t.runs,
         label=knob_label(method, knobs, as_mesh),
     )
+    row.update(estimate_of(scene, method, call_knobs, as_mesh))
     if "lights" in stats:  # spot lights: active lights of the (first channel's) set
         row["lights"] = int(np.asarray(stats["lights"][0]))
     if as_mesh is not None:
@@ -540,9 +550,9 @@ def kind_markdown(kind: str, result: dict) -> str:
         f" ({result['elapsed_s'] / 60:.1f} min); load average (1, 5, 15 min) before:"
         f" {', '.join(f'{x:g}' for x in result['load_before'])};"
         f" after: {', '.join(f'{x:g}' for x in result['load_after'])}.\n\n",
-        "| method | knobs | error | time ms | compile s | runs | missed flux"
+        "| method | knobs | error | estimate | time ms | compile s | runs | missed flux"
         " | reference for the same error |\n",
-        "|---|---|--:|--:|--:|--:|--:|--:|\n",
+        "|---|---|--:|--:|--:|--:|--:|--:|--:|\n",
     ]
     order = sorted(range(len(rows)), key=lambda i: (rows[i]["method"], rows[i]["time_s"]))
     for i in order:
@@ -553,8 +563,12 @@ def kind_markdown(kind: str, result: dict) -> str:
             + (" **(P)**" if i in front else "")
             + ("" if r["choosable"] else " (not chosen)")
         )
+        estimate = "-"
+        if r.get("estimate") is not None:
+            estimate = f"{r['estimate']:.4f}" + ("" if r["estimate_of_row"] else " (finer)")
         out.append(
-            f"| {name} | {knobs_text(r)} | {r['error']:.4f} | {1e3 * r['time_s']:.1f} |"
+            f"| {name} | {knobs_text(r)} | {r['error']:.4f} | {estimate}"
+            f" | {1e3 * r['time_s']:.1f} |"
             f" {r['compile_s']:.1f} | {r['runs']} | {missed}"
             f" | {reference_time_at(r['error'], refs)} |\n"
         )
@@ -589,6 +603,12 @@ def markdown(table: dict) -> str:
         " reference's densest run. Time: `jc.render(scene, method, **knobs)` as called,"
         " median of `runs` calls after a first one (at least 3; fewer than 5 once they took"
         " over 10 s), `jax.block_until_ready`; `compile s`: the first call minus the median."
+        " `estimate`: the method's own estimate of its error on this scene"
+        " (`jc.estimate_error`: the difference between this setting and the next coarser"
+        " one of its accuracy knob; `(finer)`: at the coarsest, the estimate for the next"
+        " finer setting), which `render(scene, tolerance=t)` refines with where it was"
+        " measured reliable; how far to trust it on held-out scenes:"
+        " [estimate.md](estimate.md) and its plot below."
         " `missed flux`: the largest"
         " `missed_flux_fraction` over the channels that `render(..., return_stats=True)`"
         " reports (light the method knows it left out: outside a window, unfitted by the"
@@ -605,7 +625,8 @@ def markdown(table: dict) -> str:
         " The machine (2 CPU cores) was shared with other jobs: the load averages are given"
         " per kind; above 2, this benchmark got only part of the CPU and times can be off"
         " by a factor of two or more.\n\n",
-        f"![Error against time per scene kind]({PNG_NAME})\n",
+        f"![Error against time per scene kind]({PNG_NAME})\n\n",
+        "![Error estimates against the true error on held-out scenes](estimate.png)\n",
     ]
     for kind in KINDS:
         if kind in table["kinds"]:

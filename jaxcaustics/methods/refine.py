@@ -30,7 +30,8 @@ import warnings
 
 import numpy as np
 
-from .._checks import check_number
+from .._checks import check_int, check_number
+from ..scene.ellipsoid import EllipsoidScene
 from .base import Method, RenderResult, worst
 from .choose import (
     Choice,
@@ -77,10 +78,16 @@ def _compare(coarse: Method, low: RenderResult, fine: Method, high: RenderResult
     return ErrorEstimate(difference + missed, difference, missed, coarse, fine, *meshes)
 
 
-def estimate_error(scene, method: Method) -> tuple[RenderResult, ErrorEstimate]:
+def estimate_error(
+    scene, method: Method, *, subdivisions: int | None = None
+) -> tuple[RenderResult, ErrorEstimate]:
     """Render `scene` with `method` and with the next coarser setting of its accuracy
     knob (at the coarsest, with `method` and the next finer one) and estimate the finer
     image's error from their difference.
+
+    `subdivisions`: for an `EllipsoidScene` rendered by a mesh method, the tessellation
+    (`Ellipsoid.to_mesh`) of `method`'s render; the coarser render has one subdivision
+    fewer (the finer one more), so that the difference sees the tessellation's error.
 
     **Returns:** ``(result, estimate)``: the finer render (a `RenderResult`) and its
     `ErrorEstimate`. Two renders: about 1.25 to 1.5 times the cost of `method` alone when
@@ -88,12 +95,17 @@ def estimate_error(scene, method: Method) -> tuple[RenderResult, ErrorEstimate]:
     """
     if not isinstance(method, Method):
         raise ValueError(f"`method` must be a Method, got {type(method).__name__}")
-    coarse = method.coarsened()
-    fine = method
-    if coarse is None:
-        coarse, fine = method, method.refined()
-    low, high = coarse(scene), fine(scene)
-    return high, _compare(coarse, low, fine, high)
+    if subdivisions is not None:
+        subdivisions = check_int(subdivisions, "subdivisions", 0)
+        if not isinstance(scene, EllipsoidScene):
+            raise ValueError(
+                f"`subdivisions` is for an EllipsoidScene rendered as a mesh, got a "
+                f"{type(scene).__name__}"
+            )
+    (coarse, coarse_sub), (fine, fine_sub) = _first_pair(method, subdivisions)
+    low = _render_level(scene, coarse, coarse_sub)
+    high = _render_level(scene, fine, fine_sub)
+    return high, _compare(coarse, low, fine, high, (coarse_sub, fine_sub))
 
 
 def _start(scene, tolerance: float, name: str | None, margin: float) -> Choice | None:
@@ -199,10 +211,8 @@ def refine_to_tolerance(
     subdivisions = choice.as_mesh["subdivisions"] if choice.as_mesh else None
     start = time.perf_counter()
     guess = method_class(choice.method).from_knobs(**choice.knobs)
-    (coarse, coarse_sub), (fine, fine_sub) = _first_pair(guess, subdivisions)
-    low = _render_level(scene, coarse, coarse_sub)
-    result = _render_level(scene, fine, fine_sub)
-    estimate = _compare(coarse, low, fine, result, (coarse_sub, fine_sub))
+    result, estimate = estimate_error(scene, guess, subdivisions=subdivisions)
+    fine_sub = estimate.fine_subdivisions
     levels = [estimate]
     stop = None
     last = time.perf_counter() - start  # the last level's seconds (both renders, first)
