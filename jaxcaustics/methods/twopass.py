@@ -319,14 +319,14 @@ def _largest_shift(scene: WaterScene, iterations: int, supersample: int) -> tupl
 def auto_window(
     scene: WaterScene,
     hit_iterations: int = 3,
-    supersample: int = 1,
+    supersample: int = 2,
     *,
     memory_limit: int | None = None,
 ) -> tuple[int, int]:
     """``(N, M)`` just large enough for the scene's largest ray displacement.
 
     Traces the pre-pass once (needs concrete scene values: call it outside `jit` and
-    `vmap`; under `grad` the window is a constant).
+    `vmap`; under `grad` the window is a constant). The defaults are `two_pass`'s.
     `hit_iterations`, `supersample` and `memory_limit` as in `two_pass` (the pre-pass
     of the smallest window must fit in `memory_limit`).
     """
