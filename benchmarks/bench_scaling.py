@@ -101,7 +101,7 @@ def worker(n_devices: int, size: dict) -> dict:
         ]
     )
     out["water batch"] = _timed(
-        lambda: gather_to_host(render_batch(waters, samples_x=7, channels_y=6)), size["repeats"]
+        lambda: gather_to_host(render_batch(waters, jc.TwoPass.paper())), size["repeats"]
     )
 
     # photon bands

@@ -60,7 +60,7 @@ def speed_table(sizes, repeats) -> list[dict]:
 
         @jax.jit
         def forward(scene):
-            return jc.render(scene, samples_x=7, channels_y=6, hit_iterations=3)
+            return jc.render(scene, jc.TwoPass.paper(hit_iterations=3))
 
         @jax.jit
         def gradient(heights, scene):
@@ -125,7 +125,11 @@ def window_table(scene, truth, windows, repeats) -> list[dict]:
     for n, m in windows:
         if n == "auto":
             n, m = jc.auto_window(scene)
-        fn = jax.jit(lambda s, n=n, m=m: jc.render(s, samples_x=n, channels_y=m, return_stats=True))
+        fn = jax.jit(
+            lambda s, n=n, m=m: jc.render(
+                s, samples_x=n, channels_y=m, supersample=1, return_stats=True
+            )
+        )
         fn, compile_s = compile_time(fn, scene)
         t = timed(fn, scene, repeats=repeats)
         image, stats = t.out
@@ -152,7 +156,9 @@ def knob_table(scene, truth, knob, values, repeats) -> list[dict]:
     rows = []
     for value in values:
         fn = jax.jit(
-            lambda s, value=value: jc.render(s, samples_x=n, channels_y=m, **{knob: value})
+            lambda s, value=value: jc.render(
+                s, samples_x=n, channels_y=m, **({"supersample": 1} | {knob: value})
+            )
         )
         t = timed(fn, scene, repeats=repeats)
         rows.append(

@@ -93,7 +93,7 @@ def main(argv=None) -> int:
 
     scene = water_scene(shape, args.time, seed=args.seed, amplitude=args.amplitude)
     start = time.perf_counter()
-    image, stats = jc.render(scene, "twopass", return_stats=True, samples_x=7, channels_y=6)
+    image, stats = jc.render(scene, jc.TwoPass.paper(), return_stats=True)
     image = np.asarray(image)
     seconds = time.perf_counter() - start
     missed = float(stats["missed_flux_fraction"][0])

@@ -66,7 +66,7 @@ def main(argv=None) -> int:
     times = [k * args.dt for k in range(frames)]
 
     def render(scene):
-        image, stats = jc.render(scene, "twopass", return_stats=True, samples_x=7, channels_y=6)
+        image, stats = jc.render(scene, jc.TwoPass.paper(), return_stats=True)
         return np.asarray(image), float(stats["missed_flux_fraction"][0])
 
     start = time.perf_counter()

@@ -76,6 +76,10 @@ def test_refine_options_are_checked():
         jc.render(lens(), tolerance=0.1, refine=True, budget_s=-1.0)
     with pytest.raises(ValueError, match="`method` must be a Method"):
         jc.estimate_error(lens(), "triangles")
+    with pytest.raises(ValueError, match="`subdivisions` is for an EllipsoidScene"):
+        jc.estimate_error(lens(), jc.CausticTriangles(photons=9), subdivisions=2)
+    with pytest.raises(ValueError, match="`subdivisions`"):
+        jc.estimate_error(lens(), jc.CausticTriangles(photons=9), subdivisions=-1)
 
 
 def sea(zenith, pixels=24):
