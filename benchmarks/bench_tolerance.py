@@ -1,13 +1,15 @@
-"""Does ``render(scene, tolerance=t)`` meet t, and how much slower is it than the best?
+"""Does the accuracy table's choice (``render(scene, tolerance=t, refine=False)``) meet t,
+and how much slower is it than the best? (The default, refining on the scene at hand, is
+measured by ``bench_estimate.py``.)
 
 On held-out scenes, one per scene kind and none of them the scene its accuracy table was
 measured on (``jaxcaustics/data/accuracy.json``, from ``bench_accuracy.py``), for several
 tolerances t:
 
-- the choice (`choose_method`) is rendered as `render(scene, tolerance=t)` would, its
-  error measured against a dense reference (`reference_image`; relative L1 after a
-  1-pixel blur, `image_error`) and its time per render taken (median of 3 calls after a
-  first, compiling one; `block_until_ready`);
+- the choice (`choose_method`) is rendered as `render(scene, tolerance=t, refine=False)`
+  would, its error measured against a dense reference (`reference_image`; relative L1
+  after a 1-pixel blur, `image_error`) and its time per render taken (median of 3 calls
+  after a first, compiling one; `block_until_ready`);
 - every choosable setting of the kind's table that the scene allows is run and measured
   the same way, and the fastest of them that meets t *on this scene* is found;
 - ``factor`` = the choice's time / that fastest time (1 when the choice is the fastest
