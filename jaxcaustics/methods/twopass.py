@@ -376,9 +376,10 @@ class TwoPass(Method):
     @classmethod
     def paper(cls, **knobs) -> TwoPass:
         """Yuksel & Keyser's settings: N = 7 samples along ``x``, M = 6 (7 pixels along
-        ``y``), one sample per pixel; `knobs` replace any of them. Fast, and exact
-        where the light moves less than 3 pixels; beyond that it misses light (which
-        `render` warns about)."""
+        ``y``), one sample per pixel (a pixel-sized square each, so the caustic is
+        blurred by about a pixel); `knobs` replace any of them. Fast; it misses no
+        light where the light moves less than 3 pixels, and beyond that `render` warns
+        with the fraction missed."""
         return cls(**{"samples_x": 7, "channels_y": 6, "supersample": 1, **knobs})
 
     def needs_sizing(self) -> bool:
