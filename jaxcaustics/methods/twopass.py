@@ -148,16 +148,22 @@ def _pass1(
     """Pass 1 for one channel: ``(M + 1, rows + M, cols)`` partial sums.
 
     Channel ``k`` of row ``r`` holds the light that the ``N`` samples of row ``r``
-    around each column send to the pixel ``k - M/2`` rows away.
+    around each column send to the pixel ``k - M/2`` rows away. A rolled loop over the
+    window's ``N`` columns, its ``M + 1`` channels at once: unrolled, the 65 x 64
+    window of a 48 x 64-pixel sea compiled in 21 s and rendered in 27 ms (rolled: 0.6 s
+    and 12 ms); the paper's 7 x 7 on 800 x 600 pixels renders about 10% slower rolled
+    (38-39 ms against 34-36 ms, the pre-pass being most of it).
     """
     cols = shift_x.shape[1] - 2 * half_x
-    out = [jnp.zeros(shift_x.shape[:1] + (cols,), shift_x.dtype) for _ in range(2 * half_y + 1)]
-    for dx in range(-half_x, half_x + 1):
-        window = slice(half_x + dx, half_x + dx + cols)
-        wx = flux[:, window] * _overlap(shift_x[:, window] + dx, width)
-        for k in range(2 * half_y + 1):
-            out[k] = out[k] + wx * _overlap(shift_y[:, window] - (k - half_y), width)
-    return jnp.stack(out)
+    offsets = (jnp.arange(2 * half_y + 1) - half_y).astype(shift_y.dtype)[:, None, None]
+
+    def column(i, out):  # the samples i - N/2 columns from each pixel's
+        sx, sy, f = (jax.lax.dynamic_slice_in_dim(a, i, cols, 1) for a in (shift_x, shift_y, flux))
+        wx = f * _overlap(sx + (i - half_x).astype(sx.dtype), width)
+        return out + wx[None] * _overlap(sy[None] - offsets, width)
+
+    out = jnp.zeros((2 * half_y + 1, shift_x.shape[0], cols), shift_x.dtype)
+    return jax.lax.fori_loop(0, 2 * half_x + 1, column, out)
 
 
 def _pass2(partial: Array, half_y: int) -> Array:
