@@ -224,10 +224,15 @@ def eqx_set(scene, heights, depth, direction):
     )
 
 
-@pytest.mark.parametrize("supersample", [1, 2])
-def test_gradients_match_central_differences(rng, supersample):
+@pytest.mark.parametrize(
+    "knobs",
+    [{"supersample": 1}, {"supersample": 2}, {"supersample": 2, "samples_x": 11, "channels_y": 10}],
+    ids=["S1", "S2", "S2-splat"],
+)
+def test_gradients_match_central_differences(rng, knobs):
     """Reverse and forward mode against central differences in float64, with the
-    paper's pixel-sized footprint (S = 1) and half-pixel sub-sample footprints (S = 2).
+    paper's pixel-sized footprint (S = 1), half-pixel sub-sample footprints (S = 2), and
+    a window wide enough to be summed by splatting (`SPLAT_FROM_WINDOW`).
 
     Both derivatives are of the exact hit (implicit function theorem at convergence),
     so the Newton iteration count is high enough for the hit to converge.
@@ -235,7 +240,7 @@ def test_gradients_match_central_differences(rng, supersample):
     heights = sines((16, 20), EXT)
     scene = make_scene(heights, EXT, zenith=30.0, azimuth=20.0, shape=(16, 20), fresnel=True)
     weights = jnp.asarray(rng.normal(size=(16, 20)))
-    loss = _loss_fn(scene, weights, hit_iterations=6, supersample=supersample)
+    loss = _loss_fn(scene, weights, hit_iterations=6, **knobs)
     args = (scene.surface.heights, scene.rest_depth, scene.light.direction)
     grads = jax.grad(loss, argnums=(0, 1, 2))(*args)
     for _ in range(3):
@@ -252,6 +257,43 @@ def test_gradients_match_central_differences(rng, supersample):
         _, fwd = jax.jvp(loss, args, tangents)
         np.testing.assert_allclose(float(rev), float(fd), rtol=1e-5, atol=1e-8)
         np.testing.assert_allclose(float(fwd), float(fd), rtol=1e-5, atol=1e-8)
+
+
+@pytest.mark.parametrize(
+    "half_x, half_y, supersample, dtype",
+    [(2, 1, 1, np.float64), (1, 2, 2, np.float64), (0, 0, 1, np.float64), (2, 1, 4, np.float32)],
+)
+def test_splatting_takes_the_gathers_sums(half_x, half_y, supersample, dtype):
+    """`splat_window` (each sample adds its square to the pixels it overlaps) gives
+    `gather_window`'s image, forward derivative and gradient, also where samples sit on
+    the tents' kinks (multiples of half a sub-pixel) and land beyond the window or off
+    the image. Float64 to rounding; float32 within 1e-5 of the largest value (the sums
+    are added in another order)."""
+    rng = np.random.default_rng(half_x)
+    shape = (12 + 2 * half_y, 15 + 2 * half_x)
+    sx = rng.normal(size=shape) * (half_x + 1)
+    sy = rng.normal(size=shape) * (half_y + 1)
+    sx[::3] = np.round(sx[::3] * 2 * supersample) / (2 * supersample)  # on the kinks
+    sy[1::3] = np.round(sy[1::3] * 2 * supersample) / (2 * supersample)
+    flux = rng.uniform(size=shape)
+    samples = tuple(jnp.asarray(a, dtype) for a in (sx, sy, flux))
+    tangents = tuple(jnp.asarray(rng.normal(size=shape), dtype) for _ in range(3))
+    weights = jnp.asarray(rng.normal(size=(12, 15)), dtype)
+    width = 1.0 / supersample
+    results = []
+    for sums in (twopass.gather_window, twopass.splat_window):
+
+        def image(*a, sums=sums):
+            return sums(*a, half_x, half_y, width)
+
+        value, jvp = jax.jit(lambda s, t, f=image: jax.jvp(f, s, t))(samples, tangents)
+        loss = lambda *a, f=image: jnp.sum(weights * jnp.sin(f(*a)))  # noqa: E731
+        grad = jax.jit(jax.grad(loss, (0, 1, 2)))(*samples)
+        results.append((value, jvp, *grad))
+    atol = 1e-12 if dtype == np.float64 else 1e-5
+    for gathered, splatted in zip(*results, strict=True):
+        scale = max(1.0, float(jnp.max(jnp.abs(gathered))))
+        np.testing.assert_allclose(np.asarray(splatted), np.asarray(gathered), atol=atol * scale)
 
 
 @pytest.mark.slow  # on request, for the default run's budget (the height gradients stay)
