@@ -89,16 +89,24 @@ class PrePass(eqx.Module):
 
 
 SAMPLES_PER_BLOCK = 1 << 15
+"""The pre-pass traces its samples in blocks of about this many (whole rows of the
+padded grid, a `lax.map` over the blocks): the temporaries of one block are reused
+block after block instead of being allocated (and page-faulted in) anew for the whole
+grid on every render. At 800 x 600 pixels with 3 Newton steps one unblocked pre-pass
+spent about half its time faulting in fresh memory. Forward / gradient of the pre-pass
+and gather, ms, at 800 x 600 pixels: blocks of 2^15 samples 20.7 / 71, 2^17 28 / 80,
+unblocked 37 / 105; at 400 x 300 (124k samples) 2^15 5.1 / 18, unblocked 4.3 / 15.5:
+see `UNBLOCKED_UP_TO`."""
+
+UNBLOCKED_UP_TO = 1 << 17
+"""A pre-pass of at most this many samples runs in one block (smaller grids gain nothing
+from blocks: see `SAMPLES_PER_BLOCK`)."""
+
 SPLAT_FROM_WINDOW = 100
 """Windows of at least this many pixels (``N x (M + 1)``) are summed by `splat_window`,
 smaller ones by `gather_window` (the same image). Measured at 800 x 600 pixels, forward
 / gradient of the sums, ms: 7 x 7 gather 5.0 / 7.1, splat 4.1 / 21.3; 11 x 11 gather
 10.6 / 17.7, splat 3.8 / 18.0; 21 x 19 gather 39 / 200, splat 4.5 / 27."""
-"""The pre-pass traces its samples in blocks of about this many (whole rows of the
-padded grid, a `lax.map` over the blocks): the temporaries of one block are reused
-block after block instead of being allocated (and page-faulted in) anew for the whole
-grid on every render. At 800 x 600 pixels with 3 Newton steps one unblocked pre-pass
-spent about half its time faulting in fresh memory; see `_prepass_rows`."""
 
 
 def _prepass_rows(
@@ -157,8 +165,9 @@ def prepass(
     dtype = scene.surface.heights.dtype
     gx = x0 + (jnp.arange(-half_x, cols + half_x, dtype=dtype) + 0.5) * px
     padded_rows = rows + 2 * half_y
-    block = max(1, SAMPLES_PER_BLOCK // (supersample * supersample * gx.shape[0]))
-    blocks = -(-padded_rows // block)
+    row_samples = supersample * supersample * gx.shape[0]
+    block = max(1, SAMPLES_PER_BLOCK // row_samples)
+    blocks = 1 if padded_rows * row_samples <= UNBLOCKED_UP_TO else -(-padded_rows // block)
     field = PaddedField.of(scene.surface)
     if blocks == 1:
         gy = y0 + (jnp.arange(-half_y, rows + half_y, dtype=dtype) + 0.5) * py

