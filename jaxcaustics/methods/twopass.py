@@ -95,12 +95,9 @@ block after block instead of being allocated (and page-faulted in) anew for the 
 grid on every render. At 800 x 600 pixels with 3 Newton steps one unblocked pre-pass
 spent about half its time faulting in fresh memory. Forward / gradient of the pre-pass
 and gather, ms, at 800 x 600 pixels: blocks of 2^15 samples 20.7 / 71, 2^17 28 / 80,
-unblocked 37 / 105; at 400 x 300 (124k samples) 2^15 5.1 / 18, unblocked 4.3 / 15.5:
-see `UNBLOCKED_UP_TO`."""
-
-UNBLOCKED_UP_TO = 1 << 17
-"""A pre-pass of at most this many samples runs in one block (smaller grids gain nothing
-from blocks: see `SAMPLES_PER_BLOCK`)."""
+unblocked 37 / 105 (before `_bicubic_linear`); at 400 x 300 (124k samples) blocks of
+2^15 5.4 / 16, unblocked 4.6 / 25 (with `_bicubic_linear`, whose reverse pass is slower
+on large arrays)."""
 
 SPLAT_FROM_WINDOW = 100
 """Windows of at least this many pixels (``N x (M + 1)``) are summed by `splat_window`,
@@ -167,7 +164,7 @@ def prepass(
     padded_rows = rows + 2 * half_y
     row_samples = supersample * supersample * gx.shape[0]
     block = max(1, SAMPLES_PER_BLOCK // row_samples)
-    blocks = 1 if padded_rows * row_samples <= UNBLOCKED_UP_TO else -(-padded_rows // block)
+    blocks = -(-padded_rows // block)
     field = PaddedField.of(scene.surface)
     if blocks == 1:
         gy = y0 + (jnp.arange(-half_y, rows + half_y, dtype=dtype) + 0.5) * py
@@ -394,12 +391,15 @@ def two_pass_bytes(scene: WaterScene, samples_x: int, channels_y: int, supersamp
     """Memory of a two-pass render, bytes (an estimate, made before compiling): per
     channel and sub-pixel phase (``S^2``), `_SAMPLE_FLOATS` numbers per pre-pass sample
     of the padded grid ``(rows + M) x (cols + N - 1)`` and the ``N + M + 1`` partial
-    sums per pixel row of the gather, plus the image. It grows with the receiver's
-    pixels, ``S^2`` and the window."""
+    sums per pixel row of the gather (a window summed by `splat_window`: 12 numbers per
+    sample, a row, a column and a value for each pixel it reaches), plus the image. It
+    grows with the receiver's pixels, ``S^2`` and (gathered) the window."""
     rows, cols = scene.receiver.shape
     channels = len(scene.iors)
     n, m = samples_x, channels_y
-    per_phase = _SAMPLE_FLOATS * (rows + m) * (cols + n - 1) + (n + m + 1) * (rows + m) * cols
+    samples = (rows + m) * (cols + n - 1)
+    sums = 12 * samples if n * (m + 1) >= SPLAT_FROM_WINDOW else (n + m + 1) * (rows + m) * cols
+    per_phase = _SAMPLE_FLOATS * samples + sums
     floats = channels * (supersample * supersample * per_phase + rows * cols)
     return jnp.dtype(scene.surface.heights.dtype).itemsize * floats
 
