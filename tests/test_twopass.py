@@ -405,6 +405,35 @@ def test_vmap_over_a_batch_of_surfaces():
         )
 
 
+def test_blocks_of_rows_change_nothing(monkeypatch, supersample=2):
+    """The pre-pass in blocks of rows (`SAMPLES_PER_BLOCK`; here 5 rows a block, the last
+    one ragged) gives the samples and the gradient of one block, in float64."""
+    scene = make_scene(sines((13, 17)), EXT, zenith=40.0, azimuth=20.0, shape=(13, 17))
+
+    def loss(heights):  # (not jitted: the block size is read when traced)
+        changed = eqx_set(scene, heights, scene.rest_depth, scene.light.direction)
+        pre = twopass.prepass(changed, 3, 3, 3, supersample)
+        return sum(jnp.sum(jnp.sin(3.0 * a)) for a in (pre.shift_x, pre.shift_y, pre.flux))
+
+    heights = scene.surface.heights
+    blocks = []
+    original = jax.lax.map
+
+    def spy(f, xs, **kwargs):
+        blocks.append(xs.shape[0])
+        return original(f, xs, **kwargs)
+
+    monkeypatch.setattr(jax.lax, "map", spy)
+    whole = jax.value_and_grad(loss)(heights)
+    assert blocks == []
+    padded_cols = 17 + 6  # the paper's window pads 3 columns on each side
+    monkeypatch.setattr(twopass, "SAMPLES_PER_BLOCK", 5 * supersample**2 * padded_cols)
+    blocked = jax.value_and_grad(loss)(heights)
+    assert blocks == [4]  # 19 padded rows
+    np.testing.assert_allclose(float(blocked[0]), float(whole[0]), rtol=1e-12)
+    np.testing.assert_allclose(np.asarray(blocked[1]), np.asarray(whole[1]), atol=1e-12)
+
+
 def test_effects_a_scene_does_not_call_for_are_not_traced(monkeypatch):
     """A Fresnel-off scene never traces the Fresnel equations, and its jaxpr is smaller."""
     calls = []
