@@ -410,7 +410,7 @@ def test_blocks_of_rows_change_nothing(monkeypatch, supersample=2):
     one ragged) gives the samples and the gradient of one block, in float64."""
     scene = make_scene(sines((13, 17)), EXT, zenith=40.0, azimuth=20.0, shape=(13, 17))
 
-    def loss(heights):  # (not jitted: the block size is read when traced)
+    def loss(heights):  # (the block size is read when traced: a new jit each time)
         changed = eqx_set(scene, heights, scene.rest_depth, scene.light.direction)
         pre = twopass.prepass(changed, 3, 3, 3, supersample)
         return sum(jnp.sum(jnp.sin(3.0 * a)) for a in (pre.shift_x, pre.shift_y, pre.flux))
@@ -424,11 +424,11 @@ def test_blocks_of_rows_change_nothing(monkeypatch, supersample=2):
         return original(f, xs, **kwargs)
 
     monkeypatch.setattr(jax.lax, "map", spy)
-    whole = jax.value_and_grad(loss)(heights)
+    whole = jax.jit(jax.value_and_grad(loss))(heights)
     assert blocks == []
     padded_cols = 17 + 6  # the paper's window pads 3 columns on each side
     monkeypatch.setattr(twopass, "SAMPLES_PER_BLOCK", 5 * supersample**2 * padded_cols)
-    blocked = jax.value_and_grad(loss)(heights)
+    blocked = jax.jit(jax.value_and_grad(loss))(heights)
     assert blocks == [4]  # 19 padded rows
     np.testing.assert_allclose(float(blocked[0]), float(whole[0]), rtol=1e-12)
     np.testing.assert_allclose(np.asarray(blocked[1]), np.asarray(whole[1]), atol=1e-12)
