@@ -123,3 +123,15 @@ def test_rotation_is_a_float_leaf_in_the_dtype_of_the_heights():
     assert field.rotation.dtype == np.float32
     traced = jax.jit(lambda a: jc.HeightField(np.zeros((4, 4)), EXT, rotation=a).rotation)
     assert float(traced(0.25)) == 0.25
+
+
+def test_the_two_forms_of_the_catmull_rom_weights_agree():
+    """`_weights_by_product` (the heights' tangent) restates `catmull_rom`'s polynomials
+    as a matrix: the weights and their slopes agree."""
+    from jaxcaustics.scene import surface
+
+    t = np.linspace(0.0, 1.0, 11)
+    w, dw = surface._weights_by_product(jax.numpy.asarray(t))
+    expected_w, expected_dw, _ = surface.catmull_rom(t)
+    np.testing.assert_allclose(np.asarray(w), np.stack(expected_w, -1), atol=1e-6)
+    np.testing.assert_allclose(np.asarray(dw), np.stack(expected_dw, -1), atol=1e-6)

@@ -87,7 +87,7 @@ def _bicubic_terms(flat, first, fu, fv, width: int, second: bool):
 
 _BASIS = np.array(
     [[0.0, 1.0, 0.0, 0.0], [-0.5, 0.0, 0.5, 0.0], [1.0, -2.5, 2.0, -0.5], [-0.5, 1.5, -1.5, 0.5]]
-)  # Catmull-Rom: weights of the taps -1, 0, 1, 2 = (1, t, t^2, t^3) @ _BASIS
+)  # `catmull_rom`'s weights of the taps -1, 0, 1, 2 = (1, t, t^2, t^3) @ _BASIS (tested)
 
 
 def _weights_by_product(t):
@@ -144,7 +144,9 @@ def _bicubic_jvp(width, second, primals, tangents):
 
 def _wrap_or_clamp(coord: Array, size: int, boundary: str) -> Array:
     """Bring a continuous sample coordinate into the range the padded array covers."""
-    if boundary == "periodic":  # jnp.mod, written so that XLA vectorises it (3x faster)
+    # jnp.mod, written so that XLA vectorises it: its remainder was not (0.8 ms a call
+    # on 490k points; the two-pass pre-pass at 800 x 600, 3 Newton steps: 22 -> 17.5 ms)
+    if boundary == "periodic":
         wrapped = coord - size * jnp.floor(coord / size)
         return jnp.clip(wrapped, 0.0, size)  # rounding may reach size (a tap pads it)
     # clamp: beyond this every tap is the edge sample; extrapolate: the surface levels off
