@@ -13,6 +13,7 @@ from jaxcaustics.reconstruct.raster import (
     rasterize_gouraud,
     signed_area,
     splat_gaussian,
+    sum_in_tiers,
     window_for,
 )
 
@@ -331,6 +332,42 @@ def test_window_for_and_jit(rng):
     np.testing.assert_allclose(float(fast(*args, (24, 24), window).sum()), total, rtol=1e-12)
     # one pixel less and the largest triangle loses some of its flux
     assert float(fast(*args, (24, 24), window - 1).sum()) < total - 1e-6
+
+
+def test_tiers_draw_every_triangle_once_with_the_wide_windows_image(rng):
+    """Triangles sorted by span and drawn in tiers of narrower windows give the image
+    (and gradient) of one window wide enough for all; those past the last end are not
+    drawn."""
+    scale = np.concatenate([rng.uniform(0.1, 0.4, 40), rng.uniform(1.0, 2.5, 8)])
+    tris = _random_triangles(rng, 48, 4.0, 28.0, scale)
+    flux = rng.uniform(0.5, 1.5, 48)
+    v, f, valid = _padded(tris, flux)  # 16 invalid NaN triangles sort last
+    span = np.max(np.ceil(tris.max(axis=1)) - np.floor(tris.min(axis=1)), axis=1)
+    wide = int(span.max())
+    assert wide > 4 and (span <= 2).sum() > 10  # the tiers below have work to do
+    size = jnp.where(valid, jnp.asarray(np.pad(span, (0, PAD - 48))), -1.0)
+    tiers = ((wide, int((span > 4).sum()), 64), (4, int((span > 2).sum()), 64), (2, 48, 16))
+    weights = jnp.asarray(rng.uniform(size=SHAPE))
+
+    def raster(w, vertices, flux, valid):
+        return rasterize_exact(vertices, flux, valid, SHAPE, w)
+
+    def loss(vertices, tiers):
+        image = sum_in_tiers(raster, tiers, size, vertices, f, valid)
+        return jnp.sum(weights * image), image
+
+    run = jax.jit(jax.value_and_grad(loss, has_aux=True), static_argnums=1)
+    (_, image), grad = run(v, tiers)
+    (_, one), one_grad = run(v, ((wide, None, PAD),))
+    np.testing.assert_allclose(image, one, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(float(image.sum()), flux[span <= 28].sum(), rtol=1e-12)
+    np.testing.assert_allclose(np.asarray(grad)[:48], np.asarray(one_grad)[:48], atol=1e-12)
+    assert np.abs(np.asarray(grad)[:48]).max() > 1e-3
+    # the last tier ends three triangles early: the three narrowest are not drawn
+    short = tiers[:2] + ((2, 45, 16),)
+    narrowest = np.argsort(-span, kind="stable")[45:]
+    (_, image), _ = run(v, short)
+    np.testing.assert_allclose(float(image.sum()), flux.sum() - flux[narrowest].sum(), rtol=1e-12)
 
 
 # ----------------------------------------------------------------------------- Gouraud

@@ -560,3 +560,35 @@ def sum_in_batches(raster, batch_size: int, *arrays):
     padded = [jnp.pad(a, [(0, pad)] + [(0, 0)] * (a.ndim - 1)) for a in arrays]
     stacked = [a.reshape((chunks, batch_size) + a.shape[1:]) for a in padded]
     return _scan_sum(lambda chunk: raster(*chunk), stacked)
+
+
+def sum_in_tiers(raster, tiers, size: Array, *arrays):
+    """Sum ``raster(window, *chunk)`` over tiers of primitives by size, each tier with
+    the window its primitives need: a few wide triangles no longer set the window (and
+    the cost, ``window^2`` per primitive) of all the others.
+
+    **Arguments:**
+
+    - `raster`: ``raster(window, *chunk)``, a static int `window`.
+    - `tiers`: static ``((window, end, batch), ...)``, windows decreasing. The
+      primitives sorted by `size` (largest first, a stable sort) from the previous tier's
+      end to `end` are drawn with `window`, `batch` at a time (`sum_in_batches`); those
+      past the last end are not drawn. The caller counts the ends from the sizes so that
+      every primitive to draw lies before the last end, and every one wider than a tier's
+      window before that tier's end. One tier whose end is ``None``: every primitive,
+      unsorted (`sum_in_batches`).
+    - `size`: ``(N,)``, how many pixels a primitive spans (no gradient flows through it).
+    - `arrays`: as `sum_in_batches`: primitives along the first axis, the validity mask
+      last.
+    """
+    if len(tiers) == 1 and tiers[0][1] is None:
+        window, _, batch = tiers[0]
+        return sum_in_batches(functools.partial(raster, window), batch, *arrays)
+    order = jnp.argsort(-jax.lax.stop_gradient(size), stable=True)
+    total, start = None, 0
+    for window, end, batch in tiers:
+        picked = [a[order[start:end]] for a in arrays]
+        image = sum_in_batches(functools.partial(raster, window), batch, *picked)
+        total = image if total is None else jax.tree.map(jnp.add, total, image)
+        start = end
+    return total
