@@ -29,6 +29,7 @@ from pathlib import Path
 import matplotlib
 
 matplotlib.use("Agg")
+import jax  # noqa: E402
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 import trimesh  # noqa: E402
@@ -267,6 +268,9 @@ def main() -> None:
         measured = reliability(name, kind, scene, ref, args.quick, print)
         reliable += measured
         refined += refining(name, kind, scene, ref, measured, print)
+        # every compiled program keeps a few hundred memory mappings: free this scene's
+        # before the next (the whole run passed the kernel's 65,530 and crashed)
+        jax.clear_caches()
     args.output.mkdir(parents=True, exist_ok=True)
     plot(reliable, args.output / "estimate.png")
     write_results(

@@ -265,16 +265,19 @@ def test_mesh_flux_is_accounted_for():
     assert landed == pytest.approx(total_flux(result)[0] * (1 - missed), rel=1e-10)
 
 
-def test_auto_window_draws_in_tiers_the_one_window_image():
+@pytest.mark.parametrize(
+    "reconstruction", ["exact", pytest.param("gouraud", marks=pytest.mark.slow)]
+)
+def test_auto_window_draws_in_tiers_the_one_window_image(reconstruction):
     """window='auto' draws the narrow triangles in narrower windows (and skips the
     invalid ones): the image of the widest window for all, to rounding."""
     scene = sphere_scene(light=jc.DirectionalLight.from_angles(20.0))
-    tiered = jc.caustic_triangles(scene, photons=33)
+    tiered = jc.caustic_triangles(scene, photons=33, reconstruction=reconstruction)
     tiers = tiered.stats["tiers"]
     windows = [w for w, _, _ in tiers]
     assert len(tiers) > 1 and windows == sorted(windows, reverse=True)
     assert sum(n for _, n, _ in tiers) < 2 * 32 * 32  # photons missing the ball: skipped
-    one = jc.caustic_triangles(scene, photons=33, window=windows[0])
+    one = jc.caustic_triangles(scene, photons=33, reconstruction=reconstruction, window=windows[0])
     assert one.stats["tiers"] == ((windows[0], 2 * 32 * 32, 2 * 32 * 32),)
     scale = float(np.asarray(one.image).max())
     np.testing.assert_allclose(tiered.image, one.image, rtol=0, atol=1e-12 * scale)
@@ -282,37 +285,43 @@ def test_auto_window_draws_in_tiers_the_one_window_image():
 
 
 def test_tiers_are_the_cheapest_that_hold_every_triangle(rng):
-    """`_size_tiers` (dynamic programming) against every chain of windows: the same
-    cost, and each tier ends past every triangle wider than the next tier's window."""
+    """`_size_tiers` (dynamic programming) against every chain of windows (the widest,
+    then powers of two): the same cost, and every tier's capacity holds what comes to it
+    in every band and channel."""
     import itertools
 
-    from jaxcaustics.methods.triangles.method import MAX_TIERS, _round_up, _size_tiers
+    from jaxcaustics.methods.triangles.method import MAX_TIERS, _power_of_two, _size_tiers
 
-    window, triangles, penalty = 9, 5000, 300.0
+    window, triangles, penalty = 12, 5000, 300.0
+    spans = np.arange(window + 3)
 
     def cost(w):
         return 10 + w * w
 
-    def total(tiers):
-        starts = [0] + [e for _, e, _ in tiers[:-1]]
-        return sum((e - a) * cost(w) + penalty for a, (w, e, _) in zip(starts, tiers, strict=True))
+    def held(counts, w, v, top):  # the most in a band of spans in (v, w] (top: above w too)
+        inside = (spans > v) | ((v == 0) & (spans == 0))
+        return np.where(inside & ((spans <= w) | top), counts, 0).sum(axis=1).max()
+
+    def total(counts, chain):
+        ends = [*chain[1:], 0]
+        return sum(
+            min(triangles, _power_of_two(max(1, held(counts, w, v, k == 0)))) * cost(w) + penalty
+            for k, (w, v) in enumerate(zip(chain, ends, strict=True))
+        )
 
     for _ in range(20):
         counts = rng.integers(0, 400, (2, window + 3)) * (rng.uniform(size=(2, window + 3)) < 0.7)
         tiers = _size_tiers(counts, window, triangles, cost, lambda w, n: n, penalty)
-        at_least = np.cumsum(counts[:, ::-1], axis=1)[:, ::-1].max(axis=0)
-        assert tiers[0][0] == window and tiers[-1][1] >= at_least[0]
-        for (_, end, _), (narrower, _, _) in zip(tiers[:-1], tiers[1:], strict=True):
-            assert end >= at_least[narrower + 1]
+        windows = [w for w, _, _ in tiers] + [0]
+        assert windows[0] == window and all(w in (1, 2, 4, 8) for w in windows[1:-1])
+        for k, (w, capacity, _) in enumerate(tiers):
+            assert capacity >= held(counts, w, windows[k + 1], k == 0)
         best = min(
-            total([(w, min(triangles, _round_up(int(e))), 0) for w, e in chain])
+            total(counts, (window, *rest))
             for k in range(MAX_TIERS)
-            for rest in itertools.combinations(range(window - 1, 0, -1), k)
-            for chain in [
-                zip((window, *rest), [at_least[v + 1] for v in rest] + [at_least[0]], strict=True)
-            ]
+            for rest in itertools.combinations((8, 4, 2, 1), k)
         )
-        assert total(tiers) == pytest.approx(best)
+        assert sum(n * cost(w) + penalty for w, n, _ in tiers) == pytest.approx(best)
 
 
 @pytest.mark.parametrize(

@@ -570,24 +570,32 @@ def sum_in_tiers(raster, tiers, size: Array, *arrays):
     **Arguments:**
 
     - `raster`: ``raster(window, *chunk)``, a static int `window`.
-    - `tiers`: static ``((window, end, batch), ...)``, windows decreasing. The
-      primitives sorted by `size` (largest first, a stable sort) from the previous tier's
-      end to `end` are drawn with `window`, `batch` at a time (`sum_in_batches`); those
-      past the last end are not drawn. The caller counts the ends from the sizes so that
-      every primitive to draw lies before the last end, and every one wider than a tier's
-      window before that tier's end. One tier whose end is ``None``: every primitive,
-      unsorted (`sum_in_batches`).
-    - `size`: ``(N,)``, how many pixels a primitive spans (no gradient flows through it).
+    - `tiers`: static ``((window, capacity, batch), ...)``, windows decreasing. The
+      primitives are sorted by `size`, largest first; a tier draws those wider than the
+      next tier's window (the last tier: every one of size >= 0) that the tiers before
+      it did not, with its `window`, `batch` at a time (`sum_in_batches`), at most
+      `capacity` of them (the caller sizes it from a count of the sizes: where more come,
+      the rest are not drawn). Which primitives fall in which tier is found here, from
+      `size`: the compiled function depends on the tiers' windows and capacities only.
+      One tier whose capacity is ``None``: every primitive, unsorted (`sum_in_batches`).
+    - `size`: ``(N,)``, the pixels a primitive spans; negative: not drawn (no gradient
+      flows through it).
     - `arrays`: as `sum_in_batches`: primitives along the first axis, the validity mask
       last.
     """
     if len(tiers) == 1 and tiers[0][1] is None:
         window, _, batch = tiers[0]
         return sum_in_batches(functools.partial(raster, window), batch, *arrays)
-    order = jnp.argsort(-jax.lax.stop_gradient(size), stable=True)
+    size = jax.lax.stop_gradient(size)
+    order = jnp.argsort(-size, stable=True)
+    ends = [jnp.sum(size > w) for w, _, _ in tiers[1:]] + [jnp.sum(size >= 0)]
     total, start = None, 0
-    for window, end, batch in tiers:
-        picked = [a[order[start:end]] for a in arrays]
+    for (window, capacity, batch), end in zip(tiers, ends, strict=True):
+        # `capacity` places from `start` (moved back where it would run past the end)
+        first = jnp.clip(start, 0, size.shape[0] - capacity)
+        place = first + jnp.arange(capacity)
+        picked = [a[jax.lax.dynamic_slice_in_dim(order, first, capacity)] for a in arrays]
+        picked[-1] = picked[-1] & (place >= start) & (place < end)
         image = sum_in_batches(functools.partial(raster, window), batch, *picked)
         total = image if total is None else jax.tree.map(jnp.add, total, image)
         start = end

@@ -89,7 +89,7 @@ class TrianglesResult(eqx.Module):
       in bands (it never existed whole: see `caustic_triangles`' `memory_limit`).
     - `stats`: dict of Python ints: ``bands`` (row bands of the photon grid, traced one
       after the other), ``batches`` (rasteriser calls, all bands), ``triangle_batch``
-      (triangles per call, in the widest tier), ``tiers`` (``(window, triangles,
+      (triangles per call, in the widest tier), ``tiers`` (``(window, capacity,
       batch)`` per tier of each band, widest first: see `caustic_triangles`' `window`),
       ``ray_batch`` (mesh scenes: rays per triangle search),
       ``devices``, ``peak_buffer_photons`` (photons of one band) and
@@ -275,19 +275,10 @@ def _window_from_histogram(histogram, flux_fraction: float) -> int:
     return int(min(MAX_AUTO_WINDOW, max(1, needed)))
 
 
-def _round_up(n: int) -> int:
-    """`n` rounded up to one of four sizes per octave (4, 5, 6, 7, 8, 10, 12, 14, 16,
-    20, ...): the tiers' sizes change with the scene, and each new size compiles."""
-    if n <= 4:
-        return n
-    step = 1 << (n.bit_length() - 3)
-    return -(-n // step) * step
-
-
-def _tier_sizes(tiers, triangles: int) -> list[int]:
-    """The number of triangles of each of `tiers` (`sum_in_tiers`), of `triangles`."""
-    ends = [triangles if end is None else end for _, end, _ in tiers]
-    return [int(n) for n in np.diff(ends, prepend=0)]
+def _power_of_two(n: int) -> int:
+    """The least power of two >= `n` (>= 1): tier capacities (and so compilations) from a
+    few sizes."""
+    return 1 << max(0, int(n) - 1).bit_length()
 
 
 def _tier_penalty(shape, dtype=jnp.float64) -> int:
@@ -301,46 +292,51 @@ def _plain_tier(window: int, batch: int):
     return ((window, None, batch),)
 
 
-def _size_tiers(counts, window: int, triangles: int, cost, batch, penalty, slack: int = 0):
+def _size_tiers(counts, window: int, triangles: int, cost, batch, penalty):
     """The cheapest tiers for `sum_in_tiers`: up to `MAX_TIERS` windows, the widest
-    `window`.
+    `window`, the others powers of two (few distinct tiers: each new one compiles).
 
     `counts` ``(..., bins)``: `_extent_histogram`'s numbers of triangles by span, for
-    each band and channel (a tier must hold its triangles in every one); `triangles`:
-    the triangles of a band; `cost(w)`: the work of one triangle in a ``w x w`` window
-    (`triangle_bytes`); `batch(w, n)`: the batch of a tier of `n` triangles; `penalty`:
-    the fixed work of a tier (its image), in `cost`'s units; `slack`: triangles added to
-    each tier's end (bands are counted in a separate pass, whose rounding may put a
-    triangle across a pixel line). **Returns:** ``((window, end, batch), ...)``.
+    each band and channel; a tier's capacity is the most it holds in any of them,
+    rounded up to a power of two (at most `triangles`, the triangles of a band);
+    `cost(w)`: the work of one triangle in a ``w x w`` window (`triangle_bytes`);
+    `batch(w, n)`: the batch of a tier of `n` triangles; `penalty`: the fixed work of a
+    tier (its image), in `cost`'s units. **Returns:** ``((window, capacity, batch),
+    ...)``, or one tier of capacity ``None`` (every triangle, unsorted).
 
     A tier of window ``w`` followed by one of window ``v < w`` holds the triangles wider
-    than ``v``, so the cost of a chain of windows is a sum over its links, and the
-    cheapest chain is found link by link (dynamic programming, ``MAX_TIERS x window^2``).
+    than ``v`` and at most ``w`` wide, so the cost of a chain of windows is a sum over
+    its links, and the cheapest chain is found link by link (dynamic programming).
     """
     counts = np.asarray(counts).reshape(-1, np.shape(counts)[-1])
-    # at_least[s]: the most triangles of span >= s in any band and channel
-    at_least = [int(n) for n in np.cumsum(counts[:, ::-1], axis=1)[:, ::-1].max(axis=0)] + [0]
-    # end[v]: where a tier ends that is followed by one of window v (v = 0: the last)
-    end = [min(triangles, _round_up(max(1, at_least[0]) + slack))]
-    end += [min(triangles, _round_up(at_least[v + 1] + slack)) for v in range(1, window)]
-    work = [cost(w) for w in range(window + 1)]
+    at_least = np.cumsum(counts[:, ::-1], axis=1)[:, ::-1]  # [:, s]: spans >= s
+    at_least = np.concatenate([at_least, np.zeros_like(at_least[:, :1])], axis=1)
+
+    def wider(v):  # per band and channel: triangles wider than v (v = 0: all of them)
+        return at_least[:, 0] if v == 0 else at_least[:, v + 1]
+
+    def capacity(w, v):  # the tier of window w followed by one of window v
+        held = wider(v) - (0 if w == window else wider(w))
+        return min(triangles, _power_of_two(max(1, int(held.max()))))
+
+    narrower = [1 << k for k in range(6) if 1 << k < window]
 
     @functools.cache
-    def cheapest(w: int, start: int, tiers: int) -> tuple[float, tuple]:
-        """The cheapest tiers from window `w` on, its tier starting at `start`."""
-        options = [(0, end[0])] + ([(v, end[v]) for v in range(1, w)] if tiers > 1 else [])
+    def cheapest(w: int, tiers: int) -> tuple[float, tuple]:
+        """The cheapest tiers from window `w` on."""
         best = (np.inf, ())
-        for v, stop in options:
-            rest, chain = cheapest(v, stop, tiers - 1) if v else (0.0, ())
-            total = (stop - start) * work[w] + penalty + rest
+        for v in [0] + ([v for v in narrower if v < w] if tiers > 1 else []):
+            rest, chain = cheapest(v, tiers - 1) if v else (0.0, ())
+            n = capacity(w, v)
+            total = n * cost(w) + penalty + rest
             if total < best[0]:
-                best = (total, ((w, stop, stop - start), *chain))
+                best = (total, ((w, n), *chain))
         return best
 
-    best = [tier for tier in cheapest(window, 0, MAX_TIERS)[1] if tier[2] > 0]
+    best = cheapest(window, MAX_TIERS)[1]
     if len(best) == 1 and best[0][1] == triangles:  # one tier of them all: no sort
         return _plain_tier(window, batch(window, triangles))
-    return tuple((w, e, batch(w, n)) for w, e, n in best)
+    return tuple((w, n, batch(w, n)) for w, n in best)
 
 
 def _check_photons_receiver(photons, receiver) -> None:
@@ -825,8 +821,9 @@ def caustic_triangles(
       Flux beyond it is reported as missed. With ``"auto"`` the triangles are also drawn
       in *tiers* (`jaxcaustics.reconstruct.raster.sum_in_tiers`): sorted by the pixels
       they span, the few wide ones with that window, the many narrow ones with up to
-      `MAX_TIERS` - 1 narrower windows, and invalid ones not at all; the tiers are the
-      cheapest by `triangle_bytes` (`stats["tiers"]`). Same image, to rounding: on the
+      `MAX_TIERS` - 1 narrower windows (powers of two), and invalid ones not at all; the
+      tiers are the cheapest by `triangle_bytes` (`stats["tiers"]`), their capacities
+      powers of two, so that a new scene seldom compiles anew. Same image, to rounding: on the
       320-face blob of the accuracy report (97^2 photons, 64^2 pixels, window 32) the
       rasterisation took 6 ms against 475 ms with one window.
     - `supersample`: ``"gouraud"`` only: ``S x S`` point samples per pixel.
@@ -1020,11 +1017,10 @@ def caustic_triangles(
     band_triangles = 2 * (rows + 2 * halo - 1) * (grid[1] - 1)
     if by_count is None:
         tiers = _plain_tier(window, batch(window, band_triangles))
-    else:  # bands are counted in another pass: a little slack for its rounding
-        slack = band_triangles // 100 + 4 if banded else 0
+    else:
         penalty = _tier_penalty(receiver.shape, dtype)
-        tiers = _size_tiers(by_count, window, band_triangles, cost, batch, penalty, slack)
-    sizes = _tier_sizes(tiers, band_triangles)
+        tiers = _size_tiers(by_count, window, band_triangles, cost, batch, penalty)
+    sizes = [band_triangles if n is None else n for _, n, _ in tiers]
     batches = bands * sum(-(-n // size) for n, (_, _, size) in zip(sizes, tiers, strict=True))
     check_photon_work(grid[0] * grid[1], batches, "photons")
     if not banded:
