@@ -570,14 +570,15 @@ def sum_in_tiers(raster, tiers, size: Array, *arrays):
     **Arguments:**
 
     - `raster`: ``raster(window, *chunk)``, a static int `window`.
-    - `tiers`: static ``((window, capacity, batch), ...)``, windows decreasing. The
-      primitives are sorted by `size`, largest first; a tier draws those wider than the
-      next tier's window (the last tier: every one of size >= 0) that the tiers before
-      it did not, with its `window`, `batch` at a time (`sum_in_batches`), at most
-      `capacity` of them (the caller sizes it from a count of the sizes: where more come,
-      the rest are not drawn). Which primitives fall in which tier is found here, from
-      `size`: the compiled function depends on the tiers' windows and capacities only.
-      One tier whose capacity is ``None``: every primitive, unsorted (`sum_in_batches`).
+    - `tiers`: static ``((window, capacity, batch), ...)``, windows decreasing. A tier
+      draws the primitives wider than the next tier's window (the last tier: down to
+      size 0) and no wider than its own (the first tier: any size), with its `window`,
+      `batch` at a time (`sum_in_batches`), at most `capacity` of them (the caller sizes
+      it from a count of the sizes: where more come, the rest, by index, are not drawn).
+      Which primitives fall in which tier is found here, from `size` (`jnp.nonzero` with
+      a static size: one pass, where a sort of 32,768 took 3.8 ms): the compiled function
+      depends on the tiers' windows and capacities only. One tier whose capacity is
+      ``None``: every primitive, in place (`sum_in_batches`).
     - `size`: ``(N,)``, the pixels a primitive spans; negative: not drawn (no gradient
       flows through it).
     - `arrays`: as `sum_in_batches`: primitives along the first axis, the validity mask
@@ -587,16 +588,13 @@ def sum_in_tiers(raster, tiers, size: Array, *arrays):
         window, _, batch = tiers[0]
         return sum_in_batches(functools.partial(raster, window), batch, *arrays)
     size = jax.lax.stop_gradient(size)
-    order = jnp.argsort(-size, stable=True)
-    ends = [jnp.sum(size > w) for w, _, _ in tiers[1:]] + [jnp.sum(size >= 0)]
-    total, start = None, 0
-    for (window, capacity, batch), end in zip(tiers, ends, strict=True):
-        # `capacity` places from `start` (moved back where it would run past the end)
-        first = jnp.clip(start, 0, size.shape[0] - capacity)
-        place = first + jnp.arange(capacity)
-        picked = [a[jax.lax.dynamic_slice_in_dim(order, first, capacity)] for a in arrays]
-        picked[-1] = picked[-1] & (place >= start) & (place < end)
+    lower = [w for w, _, _ in tiers[1:]] + [-1]
+    total = None
+    for k, ((window, capacity, batch), low) in enumerate(zip(tiers, lower, strict=True)):
+        mine = (size > low) & ((size <= window) | (k == 0))
+        (index,) = jnp.nonzero(mine, size=capacity, fill_value=0)
+        picked = [a[index] for a in arrays]
+        picked[-1] = picked[-1] & (jnp.arange(capacity) < jnp.sum(mine))
         image = sum_in_batches(functools.partial(raster, window), batch, *picked)
         total = image if total is None else jax.tree.map(jnp.add, total, image)
-        start = end
     return total
