@@ -335,7 +335,7 @@ def _size_tiers(counts, window: int, triangles: int, cost, batch, penalty):
         return best
 
     best = cheapest(window, MAX_TIERS)[1]
-    if len(best) == 1 and best[0][1] == triangles:  # one tier of them all: no sort
+    if len(best) == 1 and best[0][1] == triangles:  # one tier of them all: in place
         return _plain_tier(window, batch(window, triangles))
     return tuple((w, n, batch(w, n)) for w, n in best)
 
@@ -826,8 +826,7 @@ def caustic_triangles(
       tiers are the cheapest by `triangle_bytes` (`stats["tiers"]`), their capacities
       powers of two, so that a new scene seldom compiles anew. Same image, to rounding:
       on the 320-face blob of the accuracy report (97^2 photons, 64^2 pixels, window 32)
-      the rasterisation took 6.0 ms (12 ms timed between runs of the other) against
-      150 ms with one window.
+      the rasterisation took 6 ms against 150 ms with one window.
     - `supersample`: ``"gouraud"`` only: ``S x S`` point samples per pixel.
     - `hit_iterations`: lens scenes: Newton steps for the top-surface hit.
     - `memory_limit`: bytes for the photon and triangle buffers (default 1 GiB). Half
