@@ -275,6 +275,12 @@ def gather_window(shift_x, shift_y, flux, half_x: int, half_y: int, width: float
     return _gather_window(shift_x, shift_y, flux, half_x, half_y, width)
 
 
+def _splatted(half_x: int, half_y: int) -> bool:
+    """Whether a window of half widths ``(N // 2, M // 2)`` is summed by `splat_window`
+    (``N x (M + 1)`` at least `SPLAT_FROM_WINDOW`) rather than `gather_window`."""
+    return (2 * half_x + 1) * (2 * half_y + 1) >= SPLAT_FROM_WINDOW
+
+
 def _reach(shift: Array, half: int, width: float):
     """Along one axis, the two pixels a sample's square (`width` pixels wide, centred
     `shift` pixels from its home pixel's centre) can reach: for each, its offset from
@@ -398,7 +404,7 @@ def two_pass_bytes(scene: WaterScene, samples_x: int, channels_y: int, supersamp
     channels = len(scene.iors)
     n, m = samples_x, channels_y
     samples = (rows + m) * (cols + n - 1)
-    sums = 12 * samples if n * (m + 1) >= SPLAT_FROM_WINDOW else (n + m + 1) * (rows + m) * cols
+    sums = 12 * samples if _splatted(n // 2, m // 2) else (n + m + 1) * (rows + m) * cols
     per_phase = _SAMPLE_FLOATS * samples + sums
     floats = channels * (supersample * supersample * per_phase + rows * cols)
     return jnp.dtype(scene.surface.heights.dtype).itemsize * floats
@@ -423,7 +429,7 @@ def _two_pass(
     rows, cols = scene.receiver.shape
     # each of the S x S sub-samples covers its own 1/S of the pixel's side
     width = 1.0 / supersample
-    if (2 * half_x + 1) * (2 * half_y + 1) < SPLAT_FROM_WINDOW:
+    if not _splatted(half_x, half_y):
         gather_phases = jax.vmap(gather_window, in_axes=(0, 0, 0, None, None, None))
 
         def sums(*samples):  # the mean over the S x S phases
