@@ -228,9 +228,12 @@ def test_intersection_is_the_first_root_to_machine_precision(zenith, boundary, r
 @pytest.mark.parametrize("boundary", ["periodic", "clamp", "extrapolate"])
 def test_rotated_surface_height_matches_the_jax_side(rotation, boundary, rng):
     """Values and world-axis gradients of a rotated field, NumPy reference against JAX
-    (float64), at random points inside and well outside the extent. Measured: at most
-    2e-14 (H) and 5e-13 (slopes of up to ~30) apart."""
+    (float64), at random points inside and well outside the extent (and the Newton
+    steps' kernel, `_height_and_slope`). Measured: at most 2e-14 (H) and 5e-13 (slopes
+    of up to ~30) apart."""
     import jax.numpy as jnp
+
+    from jaxcaustics.scene.surface import PaddedField, _height_and_slope
 
     h = rng.normal(size=(12, 9))
     ext = (-1.0, 2.0, 0.5, 2.5)
@@ -240,6 +243,15 @@ def test_rotated_surface_height_matches_the_jax_side(rotation, boundary, rng):
     got = jc.height_and_gradient(field, jnp.asarray(px), jnp.asarray(py))
     for a, b in zip(got, expected, strict=True):
         np.testing.assert_allclose(np.asarray(a), b, rtol=0, atol=1e-10)
+    # the Newton steps' own kernel: the height and the slope along a horizontal vector
+    ax, ay = 0.6, -1.7
+    h_newton, slope = _height_and_slope(
+        PaddedField.of(field), jnp.asarray(px), jnp.asarray(py), ax, ay
+    )
+    np.testing.assert_allclose(np.asarray(h_newton), expected[0], rtol=0, atol=1e-10)
+    np.testing.assert_allclose(
+        np.asarray(slope), ax * expected[1] + ay * expected[2], rtol=0, atol=1e-9
+    )
     # the gradient is along the world axes: central differences of the reference
     e = 1e-6
     fx = ref.surface_height(h, ext, boundary, px + e, py, rotation=rotation)[0]
