@@ -155,9 +155,11 @@ def allowed_rows(scene, rows: list[dict]) -> tuple[list[dict], dict[str, str]]:
     ``as_mesh`` only for an `EllipsoidScene`, judged on its mesh), and ``{method:
     reason}`` for the methods ruled out."""
     meshes: dict[int, MeshScene] = {}  # one mesh per subdivision level
+    # one verdict per method and mesh (a table has many rows of each method)
+    verdicts: dict[tuple[str, int | None], str | None] = {}
     allowed, excluded = [], {}
     for row in rows:
-        target = scene
+        target, k = scene, None
         if row.get("as_mesh"):
             if not isinstance(scene, EllipsoidScene):
                 continue
@@ -165,7 +167,9 @@ def allowed_rows(scene, rows: list[dict]) -> tuple[list[dict], dict[str, str]]:
             if k not in meshes:
                 meshes[k] = as_mesh_scene(scene, k)
             target = meshes[k]
-        reason = method_support(row["method"], target)
+        if (row["method"], k) not in verdicts:
+            verdicts[row["method"], k] = method_support(row["method"], target)
+        reason = verdicts[row["method"], k]
         if reason is None:
             allowed.append(row)
         else:
