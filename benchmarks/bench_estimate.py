@@ -12,7 +12,8 @@ under two light directions):
    estimate; the issue asks for at most 1.5 on every scene. Where the setting can be
    coarsened twice, the estimate from three settings and their observed order
    (``settings=3``, Roache's grid convergence index) is measured as well: refining uses
-   it where `Method.order_estimate_is_reliable`.
+   it nowhere: it under-stated the error 2.3 times on these scenes (caustic triangles)
+   and up to 3.7 times on harder water (``bench_estimate_stress.py``).
 2. **Refining.** ``render(scene, tolerance=t, refine=True)`` against the table's choice
    (``refine=False``) for each t: the true error, whether it met t, and the time (median
    of 3 calls after a first one that compiles every level it renders), beside the
@@ -25,6 +26,7 @@ writes ``estimate.md``, ``estimate.json`` and ``estimate.png`` to ``--output``.
 from __future__ import annotations
 
 import argparse
+import math
 import sys
 import warnings
 from pathlib import Path
@@ -48,6 +50,9 @@ from harness import environment, markdown, timed, write_results  # noqa: E402
 OUTPUT = Path(__file__).parent / "results"
 TOLERANCES = {"water": (0.05, 0.02, 0.01, 0.005), "lens": (0.05, 0.02, 0.01, 0.005)}
 MESH_TOLERANCES = (0.05, 0.02)
+#: Roache's safety factor for three settings, and the highest order believed from them
+ORDER_SAFETY = 1.25
+HIGHEST_ORDER = 2.0
 
 
 def _water(surface, zenith: float, receiver) -> jc.WaterScene:
@@ -124,44 +129,59 @@ def reliability(name, kind, scene, ref, quick: bool, log) -> list[dict]:
     out = []
     for row in allowed:
         method, subdivisions = method_for(scene, row, table["pixels"])
-        for settings in (2, 3):
-            with warnings.catch_warnings():
-                warnings.simplefilter("ignore")
-                result, estimate = jc.estimate_error(
-                    scene, method, subdivisions=subdivisions, settings=settings
-                )
-                fine_sub = estimate.fine_subdivisions
-                if settings == 3:
-                    if (estimate.fine, fine_sub) != (out[-1]["fine"], out[-1]["fine_sub"]):
-                        break  # not coarsened twice: measured as another row's finer
-                    timing = out[-1]["timing"]
-                else:
-                    target = scene if fine_sub is None else as_mesh_scene(scene, fine_sub)
-                    timing = timed(lambda m=estimate.fine, s=target: m(s).image, repeats=3)
-            true = jc.image_error(np.asarray(result.image), ref)
-            out.append(
-                dict(
-                    scene=name,
-                    kind=kind,
-                    method=repr(estimate.fine)
-                    + ("" if fine_sub is None else f" on its mesh of {fine_sub} subdivisions"),
-                    settings=settings,
-                    order=estimate.order,
-                    estimate=estimate.error,
-                    difference=estimate.difference,
-                    missed=estimate.missed,
-                    true=true,
-                    ratio=true / max(estimate.error, 1e-12),
-                    time_s=timing.median,
-                    fine=estimate.fine,
-                    fine_sub=fine_sub,
-                    timing=timing,
-                )
-            )
-            log(f"  {name} {out[-1]['method']} ({settings}): {estimate.error:.4g} / {true:.4g}")
-    for r in out:  # the Method and timing were for the loop
-        del r["fine"], r["fine_sub"], r["timing"]
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            result, estimate = jc.estimate_error(scene, method, subdivisions=subdivisions)
+            fine_sub = estimate.fine_subdivisions
+            target = scene if fine_sub is None else as_mesh_scene(scene, fine_sub)
+            timing = timed(lambda m=estimate.fine, s=target: m(s).image, repeats=3)
+            coarser = _coarser_difference(scene, estimate)
+        true = jc.image_error(np.asarray(result.image), ref)
+        row = dict(
+            scene=name,
+            kind=kind,
+            method=repr(estimate.fine)
+            + ("" if fine_sub is None else f" on its mesh of {fine_sub} subdivisions"),
+            settings=2,
+            order=None,
+            estimate=estimate.error,
+            difference=estimate.difference,
+            missed=estimate.missed,
+            true=true,
+            ratio=true / max(estimate.error, 1e-12),
+            time_s=timing.median,
+        )
+        out.append(row)
+        if coarser is not None:
+            order, error = three_settings(coarser, estimate)
+            ratio = true / max(error, 1e-12)
+            out.append({**row, "settings": 3, "order": order, "estimate": error, "ratio": ratio})
+        log(f"  {name} {row['method']}: estimate {estimate.error:.4g} true {true:.4g}")
     return out
+
+
+def _coarser_difference(scene, estimate) -> float | None:
+    """The difference of the two settings before `estimate`'s finer one (`estimate`'s
+    coarser setting and the one before it), or ``None`` where there is none."""
+    sub = estimate.coarse_subdivisions
+    if estimate.coarse.coarsened() is None or sub == 0:
+        return None
+    _, coarser = jc.estimate_error(scene, estimate.coarse, subdivisions=sub)
+    return coarser.difference
+
+
+def three_settings(coarser_difference: float, estimate) -> tuple[float | None, float]:
+    """``(order, error)`` from three settings, each twice as fine as the one before:
+    the order ``p`` their differences show (``coarser_difference / difference = 2^p``;
+    ``None`` where they did not shrink) and the finer image's error by Roache's grid
+    convergence index, ``1.25 difference / (2^p - 1)`` with ``p`` at most 2, never above
+    the difference (P. J. Roache, J. Fluids Eng. 116, 1994), plus the missed light."""
+    d = estimate.difference
+    if not 0.0 < d < coarser_difference:
+        return None, estimate.error
+    order = math.log2(coarser_difference / d)
+    share = min(1.0, ORDER_SAFETY / (2.0 ** min(order, HIGHEST_ORDER) - 1.0))
+    return order, d * share + estimate.missed
 
 
 def _render_to(scene, t: float, refine: bool):
@@ -256,7 +276,7 @@ def _largest_ratios(reliable: list[dict]) -> list[str]:
             if not mine:
                 continue
             worst = max(mine, key=lambda r: r["ratio"])
-            used = cls.estimate_is_reliable and (settings == 2 or cls.order_estimate_is_reliable)
+            used = cls.estimate_is_reliable and settings == 2
             lines.append(
                 f"| {cls.__name__} | {settings} | {worst['ratio']:.2f} | {worst['scene']}, "
                 f"{worst['method']} | {'yes' if used else 'no'} |"

@@ -106,40 +106,6 @@ def test_water_is_refined_by_default_and_meets_the_tolerance(zenith, tolerance):
     assert jc.image_error(np.asarray(image), ref) <= tolerance
 
 
-def test_three_settings_scale_the_difference_by_the_order_they_show():
-    """Roache's grid convergence index: the last difference over 2^p - 1, times 1.25,
-    with p the order the three settings show (at most 2, and never above the
-    difference)."""
-    scene = sea(30.0)
-    result, estimate = jc.estimate_error(scene, jc.TwoPass(supersample=4), settings=3)
-    s1, s2, s4 = (
-        jc.render(scene, jc.TwoPass(supersample=s, hit_iterations=h))
-        for s, h in ((1, 1), (2, 2), (4, 3))
-    )
-    coarser, last = jc.image_error(s1, s2), jc.image_error(s2, s4)
-    assert estimate.coarse.supersample == 2 and estimate.fine.supersample == 4
-    assert estimate.difference == pytest.approx(last, rel=1e-9)
-    assert estimate.order == pytest.approx(np.log2(coarser / last), rel=1e-9)
-    share = min(1.0, 1.25 / (2.0 ** min(estimate.order, 2.0) - 1.0))
-    assert estimate.error == pytest.approx(last * share + estimate.missed, rel=1e-9)
-    # measured: the order 1.90, so that the estimate is 0.46 of the difference; the
-    # true error is 0.96 of the estimate, 0.44 of the difference
-    assert estimate.error < 0.5 * estimate.difference
-    true = jc.image_error(np.asarray(result.image), jc.reference_image(scene, photons_per_axis=32))
-    assert estimate.error >= true / 1.5
-    with pytest.raises(ValueError, match="`settings` must be 2 or 3"):
-        jc.estimate_error(scene, jc.TwoPass(), settings=4)
-
-
-def test_two_pass_refining_uses_the_observed_order_from_its_second_comparison():
-    """(Caustic triangles keep the difference: `test_an_ellipsoid_refines_...`.)"""
-    _, stats = jc.render(sea(30.0), tolerance=0.004, return_stats=True)
-    first, second = stats["levels"]
-    assert first.order is None and first.error == first.difference
-    # measured: the order 1.38 and the estimate 0.78 of the difference
-    assert second.order > 1.0 and second.error < 0.9 * second.difference
-
-
 def test_only_methods_with_a_reliable_estimate_are_refined():
     """The caustic maps' estimate misses their splats' error (measured up to 95 times
     under the true error): refining them would miss the tolerance unsaid."""
@@ -171,9 +137,6 @@ def test_an_ellipsoid_refines_its_tessellation_with_the_photons():
     first, last = stats["levels"][0], stats["levels"][-1]
     assert first.fine_subdivisions == first.coarse_subdivisions + 1
     assert last.fine_subdivisions == first.fine_subdivisions + len(stats["levels"]) - 1
-    # from three settings caustic triangles under-stated the error 2 times on a held-out
-    # ellipsoid (bench_estimate.py): their estimate stays the difference
-    assert len(stats["levels"]) >= 2 and last.order is None and last.error == last.difference
     assert stats["error_estimate"] <= 0.02
     ref = jc.reference_image(ball, photons_per_axis=512)
     assert jc.image_error(np.asarray(image), ref) <= 0.02

@@ -76,11 +76,6 @@ class Method(eqx.Module):
     #: under-state the error by more than 1.5x on held-out scenes
     #: (``benchmarks/bench_estimate.py``); only such methods are refined to a tolerance
     estimate_is_reliable: ClassVar[bool] = False
-    #: whether the error from three settings and their observed order of convergence
-    #: (`estimate_error` with ``settings=3``) was measured never to under-state the
-    #: error by more than 1.5x on held-out scenes; refining then uses it from its
-    #: second comparison on
-    order_estimate_is_reliable: ClassVar[bool] = False
 
     def knobs(self) -> dict[str, Any]:
         """The knobs as keywords of the method's function."""

@@ -20,23 +20,11 @@ An ellipsoid rendered as a mesh refines its tessellation together with the photo
 (with a fixed tessellation, its error was common to both settings and the estimate
 under-stated it 1.7 times). Only methods with `Method.estimate_is_reliable` are refined
 to a tolerance.
-
-Three settings, each twice as fine as the one before, show how fast the differences
-shrink: by ``2^p`` per step for an error of order ``p``. The finer image's error is then
-the last difference over ``2^p - 1``, times Roache's safety factor 1.25 for three grids
-(the grid convergence index; P. J. Roache, "Perspective: a method for uniform reporting
-of grid refinement studies", J. Fluids Eng. 116, 1994), with ``p`` at most 2 (no method
-here converges faster: the two-pass footprint is the midpoint rule, caustic triangles
-interpolate linearly) and never more than the last difference itself. Refining uses it
-from its second comparison on where `Method.order_estimate_is_reliable` (two-pass). For
-caustic triangles it was measured to under-state the error twice over on held-out scenes
-(an ellipsoid's coarse tessellations exaggerate the order), so they keep the difference.
 """
 
 from __future__ import annotations
 
 import dataclasses
-import math
 import time
 import warnings
 
@@ -58,10 +46,6 @@ from .registry import METHODS, method_class
 
 #: seconds `render(scene, tolerance=t)` may spend refining before it stops and warns
 DEFAULT_BUDGET_S = 120.0
-#: Roache's safety factor on an error from three settings and their observed order
-ORDER_SAFETY = 1.25
-#: the highest order of convergence believed from three settings
-HIGHEST_ORDER = 2.0
 
 
 @dataclasses.dataclass(frozen=True)
@@ -69,17 +53,13 @@ class ErrorEstimate:
     """A method's estimated error on one scene (`estimate_error`).
 
     - `error`: the estimated error of the finer image (relative L1 after a 1-pixel blur
-      against an exact render): `difference` (times ``1.25 / (2^p - 1)`` where that is
-      below 1, with ``p`` the `order`, at most 2) plus `missed`.
+      against an exact render): `difference` plus `missed`.
     - `difference`: `image_error` of the coarser image against the finer.
     - `missed`: the largest per-channel fraction of the light the finer render's model
       left out (0 for methods whose missed flux is light landing off the receiver).
     - `coarse`, `fine`: the two settings rendered.
     - `coarse_subdivisions`, `fine_subdivisions`: for an ellipsoid rendered as a mesh,
       the tessellations (`Ellipsoid.to_mesh`) of the two renders; else ``None``.
-    - `order`: the order of convergence observed from a third, coarser setting (the
-      `difference` of the two coarser ones over this one's is ``2^order``); ``None``
-      from two settings, or where the differences did not shrink.
     """
 
     error: float
@@ -89,62 +69,32 @@ class ErrorEstimate:
     fine: Method
     coarse_subdivisions: int | None = None
     fine_subdivisions: int | None = None
-    order: float | None = None
 
 
-def _error_share(order: float | None) -> float:
-    """The share of the last difference that is the finer image's error, for the
-    observed `order` (1 when none was observed)."""
-    if order is None:
-        return 1.0
-    return min(1.0, ORDER_SAFETY / (2.0 ** min(order, HIGHEST_ORDER) - 1.0))
-
-
-def _compare(
-    coarse: Method,
-    low: RenderResult,
-    fine: Method,
-    high: RenderResult,
-    meshes=(None, None),
-    coarser_difference: float | None = None,
-) -> ErrorEstimate:
-    """The estimate from `low` (`coarse`'s render) and `high` (`fine`'s), and from the
-    difference of the two settings before them when `coarser_difference` is given."""
+def _compare(coarse: Method, low: RenderResult, fine: Method, high: RenderResult, meshes=()):
     difference = image_error(np.asarray(low.image), np.asarray(high.image))
     # light the model leaves out at every setting (not light landing off the receiver)
     missed = 0.0 if fine.missed_advice is None else worst(high.missed_flux_fraction)
-    order = None
-    if coarser_difference is not None and 0.0 < difference < coarser_difference:
-        order = math.log2(coarser_difference / difference)
-    error = difference * _error_share(order) + missed
-    return ErrorEstimate(error, difference, missed, coarse, fine, *meshes, order)
+    return ErrorEstimate(difference + missed, difference, missed, coarse, fine, *meshes)
 
 
 def estimate_error(
-    scene, method: Method, *, subdivisions: int | None = None, settings: int = 2
+    scene, method: Method, *, subdivisions: int | None = None
 ) -> tuple[RenderResult, ErrorEstimate]:
     """Render `scene` with `method` and with the next coarser setting of its accuracy
     knob (at the coarsest, with `method` and the next finer one) and estimate the finer
     image's error from their difference.
 
-    `settings`: 2, or 3 to render the setting before the coarser one too (where the
-    knob cannot be coarsened that far, finer ones follow `method`) and scale the
-    difference by the order of convergence the three show (the module's docstring;
-    measured reliable only where `Method.order_estimate_is_reliable`).
-
     `subdivisions`: for an `EllipsoidScene` rendered by a mesh method, the tessellation
     (`Ellipsoid.to_mesh`) of `method`'s render; the coarser render has one subdivision
     fewer (the finer one more), so that the difference sees the tessellation's error.
 
-    **Returns:** ``(result, estimate)``: the finest render (a `RenderResult`) and its
+    **Returns:** ``(result, estimate)``: the finer render (a `RenderResult`) and its
     `ErrorEstimate`. Two renders: about 1.25 to 1.5 times the cost of `method` alone when
-    it can be coarsened (the coarser costs a quarter to a half), 3 to 5 times otherwise;
-    a third, coarser one adds about a sixteenth.
+    it can be coarsened (the coarser costs a quarter to a half), 3 to 5 times otherwise.
     """
     if not isinstance(method, Method):
         raise ValueError(f"`method` must be a Method, got {type(method).__name__}")
-    if settings not in (2, 3):
-        raise ValueError(f"`settings` must be 2 or 3, got {settings!r}")
     if subdivisions is not None:
         subdivisions = check_int(subdivisions, "subdivisions", 0)
         if not isinstance(scene, EllipsoidScene):
@@ -152,16 +102,10 @@ def estimate_error(
                 f"`subdivisions` is for an EllipsoidScene rendered as a mesh, got a "
                 f"{type(scene).__name__}"
             )
-    ladder = _ladder(method, subdivisions, settings)
-    renders = [_render_level(scene, m, sub) for m, sub in ladder]
-    estimate = None
-    for i in range(1, len(ladder)):
-        (coarse, coarse_sub), (fine, fine_sub) = ladder[i - 1], ladder[i]
-        previous = None if estimate is None else estimate.difference
-        estimate = _compare(
-            coarse, renders[i - 1], fine, renders[i], (coarse_sub, fine_sub), previous
-        )
-    return renders[-1], estimate
+    (coarse, coarse_sub), (fine, fine_sub) = _first_pair(method, subdivisions)
+    low = _render_level(scene, coarse, coarse_sub)
+    high = _render_level(scene, fine, fine_sub)
+    return high, _compare(coarse, low, fine, high, (coarse_sub, fine_sub))
 
 
 def _start(scene, tolerance: float, name: str | None, margin: float) -> Choice | None:
@@ -218,26 +162,16 @@ def _on_mesh(subdivisions: int | None) -> str:
     )
 
 
-def _step(subdivisions: int | None, by: int) -> int | None:
-    return None if subdivisions is None else subdivisions + by
-
-
-def _ladder(guess: Method, subdivisions: int | None, settings: int) -> list:
-    """`settings` ``(method, its ellipsoid's subdivisions)``, each one step finer than
-    the one before, ending at `guess` where its knob can be coarsened that far (an
-    ellipsoid's mesh one tessellation level fewer per step, so that the differences see
-    the tessellation's error too); else finer settings follow it."""
-    ladder = [(guess, subdivisions)]
-    while len(ladder) < settings and subdivisions != 0:
-        coarse = ladder[0][0].coarsened()
-        if coarse is None:
-            break
-        subdivisions = _step(subdivisions, -1)
-        ladder.insert(0, (coarse, subdivisions))
-    while len(ladder) < settings:
-        finest, sub = ladder[-1]
-        ladder.append((finest.refined(), _step(sub, 1)))
-    return ladder
+def _first_pair(guess: Method, subdivisions: int | None):
+    """``((coarse, its subdivisions), (fine, its subdivisions))`` around the table's
+    guess: the guess and its coarser setting (one tessellation level fewer for an
+    ellipsoid's mesh, so that the difference sees the tessellation's error too), or at
+    the coarsest the guess and its finer setting."""
+    coarse = guess.coarsened()
+    if coarse is not None and subdivisions != 0:
+        return (coarse, None if subdivisions is None else subdivisions - 1), (guess, subdivisions)
+    finer = None if subdivisions is None else subdivisions + 1
+    return (guess, subdivisions), (guess.refined(), finer)
 
 
 def refine_to_tolerance(
@@ -293,7 +227,7 @@ def refine_to_tolerance(
             )
             break
         finer = estimate.fine.refined()
-        finer_sub = _step(fine_sub, 1)
+        finer_sub = None if fine_sub is None else fine_sub + 1
         try:
             higher = _render_level(scene, finer, finer_sub)
         except ValueError as err:  # a finer setting over the memory limit (checked first)
@@ -301,9 +235,7 @@ def refine_to_tolerance(
                 raise
             stop = f"a finer setting does not fit in memory ({err})"
             break
-        # from the second comparison on, three settings show the order of convergence
-        previous = estimate.difference if finer.order_estimate_is_reliable else None
-        estimate = _compare(estimate.fine, result, finer, higher, (fine_sub, finer_sub), previous)
+        estimate = _compare(estimate.fine, result, finer, higher, (fine_sub, finer_sub))
         last = time.perf_counter() - start - elapsed
         result, fine_sub = higher, finer_sub
         levels.append(estimate)

@@ -93,11 +93,9 @@ def render(
       ``False`` trusts the table. Refining starts from the table's guess (`margin`
       default 1), renders it and the next coarser setting of its accuracy knob, whose
       difference estimates the error on this scene (`estimate_error`), and refines the
-      knob until the estimate is within `tolerance` (`refine_to_tolerance`; from the
-      second comparison on, two-pass scales the difference by the order of convergence
-      its last three settings show), or the next level would end past `budget_s`
-      seconds (default 120) or not fit in memory (then a warning states the error
-      reached). ``stats["error_estimate"]`` and
+      knob until the estimate is within `tolerance` (`refine_to_tolerance`), or the
+      next level would end past `budget_s` seconds (default 120) or not fit in memory
+      (then a warning states the error reached). ``stats["error_estimate"]`` and
       ``stats["levels"]`` say what happened. Only methods whose estimate was measured
       reliable are refined (``benchmarks/results/estimate.md``): not the caustic maps
       or spot lights. An ellipsoid (rendered as a mesh) refines its tessellation too.

@@ -506,7 +506,6 @@ class TwoPass(Method):
     name: ClassVar[str] = "twopass"
     scene_types: ClassVar[tuple[type, ...]] = (WaterScene,)
     estimate_is_reliable: ClassVar[bool] = True
-    order_estimate_is_reliable: ClassVar[bool] = True
     missed_advice: ClassVar[str | None] = (
         "it lands beyond the window of samples_x x (channels_y + 1) pixels around its "
         "illumination centre; pass samples_x='auto', channels_y='auto' (the window sized "
