@@ -509,7 +509,8 @@ class TwoPass(Method):
     missed_advice: ClassVar[str | None] = (
         "it lands beyond the window of samples_x x (channels_y + 1) pixels around its "
         "illumination centre; pass samples_x='auto', channels_y='auto' (the window sized "
-        "from the largest ray displacement) or a wider window"
+        "from the largest ray displacement, up to MAX_AUTO_HALF_WINDOW = "
+        f"{MAX_AUTO_HALF_WINDOW} pixels each side) or a wider window"
     )
 
     @classmethod
