@@ -11,9 +11,10 @@ under two light directions):
    L1 after a 1-pixel blur, `image_error`). ``true / estimate`` above 1 is an optimistic
    estimate; the issue asks for at most 1.5 on every scene. Where the setting can be
    coarsened twice, the estimate from three settings and their observed order
-   (``settings=3``, Roache's grid convergence index) is measured as well: refining uses
-   it nowhere: it under-stated the error 2.3 times on these scenes (caustic triangles)
-   and up to 3.7 times on harder water (``bench_estimate_stress.py``).
+   (`three_settings`, Roache's grid convergence index) is measured as well, and its
+   rows say ``settings`` 3. Refining does not use it: it under-stated the error 2.3
+   times on these scenes (caustic triangles) and up to 3.7 times on harder water
+   (``bench_estimate_stress.py``).
 2. **Refining.** ``render(scene, tolerance=t, refine=True)`` against the table's choice
    (``refine=False``) for each t: the true error, whether it met t, and the time (median
    of 3 calls after a first one that compiles every level it renders), beside the
@@ -162,7 +163,8 @@ def reliability(name, kind, scene, ref, quick: bool, log) -> list[dict]:
 
 def _coarser_difference(scene, estimate) -> float | None:
     """The difference of the two settings before `estimate`'s finer one (`estimate`'s
-    coarser setting and the one before it), or ``None`` where there is none."""
+    coarser setting and the one before it), or ``None`` where there is none. (It renders
+    the coarser setting again: `estimate_error` does not return that image.)"""
     sub = estimate.coarse_subdivisions
     if estimate.coarse.coarsened() is None or sub == 0:
         return None
