@@ -59,7 +59,7 @@ MITSUBA = (426.0, 0.27)  # quoted from the issue (200 Adam steps on 2 cores), no
 def target():
     from skimage import data
 
-    from jaxcaustics.inverse.design import _area_average
+    from jaxcaustics.inverse.numerics import area_average as _area_average
 
     return _area_average(data.camera().astype(float), (128, 128))
 

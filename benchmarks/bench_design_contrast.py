@@ -51,7 +51,7 @@ def target(name: str):
     if name == "camera":
         from skimage import data
 
-        from jaxcaustics.inverse.design import _area_average
+        from jaxcaustics.inverse.numerics import area_average as _area_average
 
         return _area_average(data.camera().astype(float), (128, 128))
     return np.asarray(targets.TARGETS[name]())

@@ -79,7 +79,7 @@ def worker(n_devices: int, size: dict) -> dict:
 
     import jaxcaustics as jc
     from jaxcaustics.devices import gather_to_host, map_sharded, stack_scenes
-    from jaxcaustics.inverse.design import design_lens_variants
+    from jaxcaustics.inverse.variants import design_lens_variants
     from jaxcaustics.methods.batch import render_batch
     from jaxcaustics.methods.triangles.method import caustic_triangles
 

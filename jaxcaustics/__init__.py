@@ -18,8 +18,10 @@ with a height-field top; `MeshScene`: a glass or mirror `Mesh` with optional occ
 `EllipsoidScene`: a glass `Ellipsoid` or sphere; each with a `DirectionalLight` or
 `PointLight` and a `PlaneReceiver`), then `render` it.
 
-Inverse problems: `design_lens` (a caustic lens for a target picture, started from the
-optimal transport `transport_map`; `export_lens` writes it for the workshop,
+Inverse problems: `design` (a caustic lens for a target picture: a `DesignProblem` of a
+`Lens`, a `Rectangle` outline, a `Screen` and a light, solved by a `TransportStart` from
+the optimal transport `transport_map`, or `PoissonLevels`, finished by an
+`ImageRefinement`; `design_lens` is its keyword form; `export_lens` writes it for the workshop,
 `manufacturability` reports whether it can be milled, `verify_lens` renders the exported
 solid with the reference) and `recover_surface` (a water surface from its caustic).
 """
@@ -27,7 +29,7 @@ solid with the reference) and `recover_surface` (a water surface from its causti
 import importlib.metadata
 
 from .devices import device_mesh, gather_to_host, map_sharded, stack_scenes, unstack_scenes
-from .inverse.design import LensDesign, design_lens, design_lens_variants, fresnel_zones
+from .inverse.design import LensDesign, design, design_lens, fresnel_zones
 from .inverse.export import (
     ManufacturabilityReport,
     export_lens,
@@ -35,9 +37,14 @@ from .inverse.export import (
     lens_solid,
     manufacturability,
 )
+from .inverse.image_refine import ImageRefinement
+from .inverse.poisson_levels import PoissonLevels
+from .inverse.problem import DesignProblem, Lens, Rectangle, Screen
 from .inverse.recover import RecoveryResult, recover_surface
 from .inverse.sequence import SequenceResult, recover_sequence
 from .inverse.transport import TransportMap, transport_map
+from .inverse.transport_start import TransportStart
+from .inverse.variants import design_lens_variants
 from .inverse.verify import Verification, relative_l2, verify_lens
 from .io.images import read_exr, read_image, write_exr, write_png, write_png_linear16
 from .methods.base import Method, RenderResult
@@ -127,8 +134,10 @@ __all__ = [
     "Choice",
     "choose_method",
     "CubeMapOptions",
+    "design",
     "design_lens",
     "design_lens_variants",
+    "DesignProblem",
     "device_mesh",
     "DirectionalLight",
     "Effects",
@@ -152,8 +161,10 @@ __all__ = [
     "HeightField",
     "icosphere_directions",
     "image_error",
+    "ImageRefinement",
     "interpolate_spot_lights",
     "Lambertian",
+    "Lens",
     "lens_height_map",
     "lens_solid",
     "LensDesign",
@@ -172,6 +183,7 @@ __all__ = [
     "PinholeCamera",
     "PlaneReceiver",
     "PointLight",
+    "PoissonLevels",
     "precompute_spot_lights",
     "project_caustic_map",
     "ray_geo",
@@ -180,6 +192,7 @@ __all__ = [
     "recover_sequence",
     "recover_surface",
     "RecoveryResult",
+    "Rectangle",
     "reference_image",
     "refine_axis",
     "refine_to_tolerance",
@@ -190,6 +203,7 @@ __all__ = [
     "render_batch",
     "render_spot_lights",
     "RenderResult",
+    "Screen",
     "SequenceResult",
     "shade_points",
     "sine_sum",
@@ -205,6 +219,7 @@ __all__ = [
     "trace_photons",
     "transport_map",
     "TransportMap",
+    "TransportStart",
     "triangle_window",
     "triangles_image",
     "TrianglesResult",

@@ -26,9 +26,11 @@ import pytest
 import jaxcaustics as jc
 import jaxcaustics.inverse.design as design_module
 import jaxcaustics.inverse.sequence as sequence_module
+import jaxcaustics.inverse.variants as variants_module
 from jaxcaustics import reference
 from jaxcaustics.cli.design import with_flags
 from jaxcaustics.cli.main import main
+from jaxcaustics.inverse import lens_setup
 
 # every backend compilation while a case runs (none may happen: errors come first)
 _COMPILED: list[str] = []
@@ -55,14 +57,13 @@ def forbid(monkeypatch):
     def started(*args, **kwargs):
         raise AssertionError("the work started before the arguments were checked")
 
-    monkeypatch.setattr(design_module, "_run_level", started)
-    monkeypatch.setattr(design_module, "_design_by_transport", started)
+    monkeypatch.setattr(design_module, "_solve", started)
     import jaxcaustics.devices as sharding
 
     monkeypatch.setattr(sharding, "map_sharded", started)
     recover = sequence_module.recover_surface
     monkeypatch.setattr(sequence_module, "recover_surface", functools.wraps(recover)(started))
-    monkeypatch.setattr(design_module, "_physical_memory", lambda: 16 << 30)  # 16 GiB
+    monkeypatch.setattr(lens_setup, "_physical_memory", lambda: 16 << 30)  # 16 GiB
 
 
 def blob(n=16):
@@ -133,7 +134,7 @@ def test_design_lens_refuses_targets(forbid, target, name):
 )
 def test_design_lens_variants_refuses(forbid, kwargs, name):
     spec = dict(width=0.1, height=0.1, thickness=0.02, levels=(16,))
-    refused(lambda: design_module.design_lens_variants(blob(), **spec, **kwargs), name)
+    refused(lambda: variants_module.design_lens_variants(blob(), **spec, **kwargs), name)
 
 
 @pytest.mark.parametrize(

@@ -8,6 +8,14 @@ import pytest
 
 import jaxcaustics.inverse.design as design_module
 from jaxcaustics import DirectionalLight, PointLight
+from jaxcaustics.inverse import (
+    image_refine,
+    lens_model,
+    lens_setup,
+    numerics,
+    poisson_levels,
+    transport_start,
+)
 from jaxcaustics.inverse.design import design_lens
 from jaxcaustics.reference import trace_lens
 
@@ -43,7 +51,7 @@ def no_optimisation(monkeypatch):
     def forbidden(*args, **kwargs):
         raise AssertionError("the optimisation started before the specification was checked")
 
-    monkeypatch.setattr(design_module, "_run_level", forbidden)
+    monkeypatch.setattr(design_module, "_solve", forbidden)
 
 
 @pytest.mark.parametrize(
@@ -175,23 +183,23 @@ def test_poisson_start_keeps_a_masked_outside_dark_and_the_inside_even(circle):
 
 
 def test_default_levels_go_up_to_twice_the_target():
-    assert design_module.default_levels((128, 128)) == (32, 64, 128, 256)
-    assert design_module.default_levels((96, 128)) == (32, 64, 128, 256)
-    assert design_module.default_levels((16, 16)) == (32,)
+    assert poisson_levels.default_levels((128, 128)) == (32, 64, 128, 256)
+    assert poisson_levels.default_levels((96, 128)) == (32, 64, 128, 256)
+    assert poisson_levels.default_levels((16, 16)) == (32,)
 
 
 def test_level_targets_keep_the_mean_and_split_pixels_exactly():
     rng = np.random.default_rng(0)
     goal = rng.uniform(0.1, 2.0, (12, 16))
-    coarse = design_module._level_target(goal, (6, 8))
+    coarse = lens_model.level_target(goal, (6, 8))
     assert coarse.shape == (6, 8)
     np.testing.assert_allclose(coarse.mean(), goal.mean(), rtol=1e-12)
     np.testing.assert_allclose(coarse[0, 0], goal[:2, :2].mean(), rtol=1e-12)
-    fine = design_module._level_target(goal, (24, 32))
+    fine = lens_model.level_target(goal, (24, 32))
     assert fine.shape == (24, 32)
     np.testing.assert_array_equal(fine[::2, ::2], goal)
     np.testing.assert_array_equal(fine[1::2, 1::2], goal)
-    assert design_module._level_target(goal, (12, 16)) is goal
+    assert lens_model.level_target(goal, (12, 16)) is goal
 
 
 def test_fresnel_zones_keep_the_slopes_and_bound_the_relief():
@@ -254,7 +262,7 @@ def test_camera_lens_meets_the_goal_from_its_exported_files(tmp_path):
 
     from jaxcaustics import HeightField, LensScene, export_lens, read_exr, relative_l2
 
-    target = design_module._area_average(data.camera().astype(float), (128, 128))
+    target = numerics.area_average(data.camera().astype(float), (128, 128))
     d = design_lens(target, width=2.0, height=2.0, thickness=0.5, screen_distance=7.0, ior=1.5)
     paths = export_lens(d.scene, tmp_path, formats=("stl",))
     solid = trimesh.load(paths["stl"])
@@ -342,15 +350,14 @@ def test_landing_fit_gradients_are_finite_in_float32(silhouette_design):
     previous = jax.config.jax_enable_x64
     try:
         jax.config.update("jax_enable_x64", False)
-        setup = design_module._prepare(
-            silhouette(), **SPEC, **{k: v for k, v in DEFAULTS.items() if k not in SPEC}
-        )
+        problem, start, finish = design_module.lens_problem(**SPEC)
+        setup = lens_setup.prepare(problem, silhouette(), start, finish)
         shape = setup.shapes[-1]
-        _, problem = design_module._level_problem(setup, 0, None)
-        goal_x, goal_y, _ = design_module._transport_goal(setup, shape, problem)
+        problem = lens_model.level_model(setup, shape)
+        goal_x, goal_y, _ = transport_start._transport_goal(setup, shape, problem, 100)
         pixel = jnp.asarray([0.1 / 32, 0.1 / 32], jnp.float32)
-        sampling = design_module._sampling(shape, setup.aperture, problem.grid, setup.boundary)
-        fit = design_module._LandingFit(problem, goal_x, goal_y, jnp.ones(shape), pixel, sampling)
+        sampling = lens_model.vertex_sampling(shape, setup.aperture, problem.grid, setup.boundary)
+        fit = transport_start._LandingFit(problem, goal_x, goal_y, jnp.ones(shape), pixel, sampling)
 
         def loss(h):
             rx, ry = fit.residual(h)
@@ -362,14 +369,6 @@ def test_landing_fit_gradients_are_finite_in_float32(silhouette_design):
         jax.config.update("jax_enable_x64", previous)
     assert grad.dtype == jnp.float32
     assert np.isfinite(float(value)) and np.all(np.isfinite(np.asarray(grad)))
-
-
-DEFAULTS = {
-    k: p.default
-    for k, p in __import__("inspect").signature(design_lens).parameters.items()
-    if p.default is not __import__("inspect").Parameter.empty
-    and k not in ("throw", "throw_errors", "callback", "screen_distance")
-}
 
 
 def test_a_design_that_misses_the_target_warns():
@@ -390,7 +389,8 @@ def test_landing_goals_are_read_smoothly_between_their_samples():
     surface gets a moire; measured, 20-degree light: 1 - SSIM 0.184 -> 0.170)."""
     import jax.numpy as jnp
 
-    from jaxcaustics.inverse.design import _bicubic, _bilinear
+    from jaxcaustics.inverse.lens_model import _bilinear
+    from jaxcaustics.inverse.transport_start import _bicubic
 
     x = np.arange(12) + 0.5
     image = jnp.asarray(np.sin(0.4 * x)[None, :] * np.cos(0.3 * x)[:, None])
@@ -416,7 +416,7 @@ def test_edges_under_leaning_light_get_a_bevel_and_the_band_it_takes_no_transpor
     band whose rays reach the bevel. Vertical light needs none."""
     from types import SimpleNamespace
 
-    from jaxcaustics.inverse.design import _edge_bevel
+    from jaxcaustics.inverse.transport_start import _edge_bevel
 
     cell = 2.0 / 64
     h = np.full((64, 64), -0.1)
@@ -448,7 +448,7 @@ def test_the_map_smoothing_keeps_ramps_and_removes_a_one_cell_staircase():
     [1, 2, 1] / 4: a ramp (a shift, a uniform stretch) stays as it is inside, the
     discrete Legendre transforms' one-cell alternation goes (measured, 20-degree
     light before refinement: 1 - SSIM 0.150 -> 0.129, the moire arcs gone)."""
-    from jaxcaustics.inverse.design import _binomial_smooth
+    from jaxcaustics.inverse.numerics import binomial_smooth as _binomial_smooth
 
     rows, cols = np.mgrid[0:9, 0:11].astype(float)
     ramp = 0.3 * rows - 0.7 * cols + 2.0
@@ -468,7 +468,7 @@ def test_the_image_refinement_moves_only_modes_its_photons_resolve():
     import jax
     import jax.numpy as jnp
 
-    from jaxcaustics.inverse.design import _ImageRefine, _resolved_modes
+    from jaxcaustics.inverse.image_refine import _ImageRefine, _resolved_modes
 
     resolved = _resolved_modes((8, 12), 5)  # 6 photons (5 cells) a side resolve 5 modes
     assert resolved.shape == (8, 12) and resolved[4, 4] and not resolved[5, 0]
@@ -494,7 +494,7 @@ def test_a_ring_wider_than_the_bevel_can_take_warns():
     beyond the aperture is wider than a quarter of it: the bevel stops there and says so."""
     from types import SimpleNamespace
 
-    from jaxcaustics.inverse.design import _edge_bevel
+    from jaxcaustics.inverse.transport_start import _edge_bevel
 
     h = np.full((16, 16), -2.0)
     h[8, 8] = 0.0
@@ -539,7 +539,7 @@ def test_the_refinement_loss_gradient_through_its_custom_jvp_is_the_reverse_mode
     import jax.numpy as jnp
 
     from jaxcaustics import HeightField, LensScene, PlaneReceiver
-    from jaxcaustics.inverse.design import _image_loss, _ImageRefine
+    from jaxcaustics.inverse.image_refine import _image_loss, _ImageRefine
 
     rng = np.random.default_rng(3)
     heights = 0.02 * rng.normal(size=(12, 12))
@@ -586,14 +586,14 @@ def test_the_landing_fit_step_does_not_overshoot_at_the_extrapolated_rim():
     import scipy.fft
 
     n = 16
-    symbol = design_module._fit_symbol((n, n), 1.0, 1.0, 1.0, 1.0)
+    symbol = lens_model.fit_symbol((n, n), 1.0, 1.0, 1.0, 1.0)
     dct = scipy.fft.dct(np.eye(n), type=2, norm="ortho", axis=0)
     dct = np.kron(dct, dct)
     inverse = dct.T @ np.diag(1.0 / symbol.ravel()) @ dct
     vertices = np.linspace(0.0, n, n + 1)
 
     def largest_gain(boundary, edge):
-        value, slope = design_module._catmull_rom_matrix(n, 0.0, n, vertices, boundary)
+        value, slope = lens_model.catmull_rom_matrix(n, 0.0, n, vertices, boundary)
         w = np.ones(n + 1)
         w[[0, -1]] = edge
         weight = np.kron(np.diag(w), np.diag(w))
@@ -601,12 +601,12 @@ def test_the_landing_fit_step_does_not_overshoot_at_the_extrapolated_rim():
         normal = jx.T @ weight @ jx + jy.T @ weight @ jy
         return np.linalg.eigvals(inverse @ normal).real.max()
 
-    edge = design_module._EDGE_WEIGHT
-    assert largest_gain(design_module.LENS_BOUNDARY, edge) < 1.8
-    assert largest_gain(design_module.LENS_BOUNDARY, 1.0) > 4.0  # why the weighting is there
+    edge = transport_start._EDGE_WEIGHT
+    assert largest_gain(lens_model.LENS_BOUNDARY, edge) < 1.8
+    assert largest_gain(lens_model.LENS_BOUNDARY, 1.0) > 4.0  # why the weighting is there
     assert largest_gain("clamp", 1.0) < 1.8
     # and the weighting in the fit is this one
-    r = design_module._edge_weighted(np.ones((n + 1, n + 1)))
+    r = transport_start._edge_weighted(np.ones((n + 1, n + 1)))
     np.testing.assert_allclose(np.asarray(r)[0, 1:-1], edge)
     np.testing.assert_allclose(np.asarray(r)[0, 0], edge**2)
     np.testing.assert_allclose(np.asarray(r)[1:-1, 1:-1], 1.0)
@@ -624,10 +624,10 @@ def test_the_fit_reads_the_lens_surface_it_designs():
     aperture = (-1.0, 1.0, -0.7, 0.7)
     wy, dwy, wx, dwx = (
         np.asarray(a)
-        for a in design_module._sampling(h.shape, aperture, (9, 13), design_module.LENS_BOUNDARY)
+        for a in lens_model.vertex_sampling(h.shape, aperture, (9, 13), lens_model.LENS_BOUNDARY)
     )
     px, py = np.meshgrid(np.linspace(-1.0, 1.0, 13), np.linspace(-0.7, 0.7, 9))
-    field = HeightField(h, aperture, design_module.LENS_BOUNDARY)
+    field = HeightField(h, aperture, lens_model.LENS_BOUNDARY)
     got = height_and_gradient(field, jnp.asarray(px), jnp.asarray(py))
     v, gx, gy = (np.asarray(a) for a in got)
     np.testing.assert_allclose(wy @ h @ wx.T, v, atol=1e-12)
@@ -673,14 +673,14 @@ def test_a_heights_grid_too_large_for_the_machine_is_refused_before_any_work(mon
     """``levels=(4096,)`` once ran on to 9 GB in 10 s; the estimate (1.3 kB a sample,
     measured) is refused above half the machine's memory (here made 16 GiB)."""
     pages = {"SC_PAGE_SIZE": 4096, "SC_PHYS_PAGES": (16 << 30) // 4096}
-    monkeypatch.setattr(design_module.os, "sysconf", lambda name: pages[name])
+    monkeypatch.setattr(lens_setup.os, "sysconf", lambda name: pages[name])
     with pytest.raises(ValueError, match="levels"):
         design_lens(blob(), **SPEC, levels=(4096,), start="poisson")
     with pytest.raises(ValueError, match="target's size"):
         design_lens(np.ones((4096, 4096)), **SPEC)
-    design_module._check_design_memory((1024, 1024), 2, 0)  # 6.1 GiB: fine
+    lens_setup._check_design_memory((1024, 1024), 2, 0)  # 6.1 GiB: fine
     with pytest.raises(ValueError, match="GiB"):  # with the refinement's 4 GiB: not
-        design_module._check_design_memory((1024, 1024), 2, design_module._REFINE_MEMORY)
+        lens_setup._check_design_memory((1024, 1024), 2, image_refine._REFINE_MEMORY)
 
 
 def test_a_minimiser_object_designs_on_the_half_sum_of_squares():

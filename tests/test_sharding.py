@@ -20,7 +20,7 @@ from jaxcaustics.devices import (
     stack_scenes,
     unstack_scenes,
 )
-from jaxcaustics.inverse.design import design_lens_variants
+from jaxcaustics.inverse.variants import design_lens_variants
 from jaxcaustics.methods.batch import render_batch
 
 SCRIPT = textwrap.dedent(
@@ -100,7 +100,8 @@ SCRIPT = textwrap.dedent(
         np.testing.assert_allclose(g4, g1, rtol=1e-10, atol=1e-10)
 
         # design variants over three screen_distances, against design_lens one by one
-        from jaxcaustics.inverse.design import design_lens, design_lens_variants
+        from jaxcaustics.inverse.design import design_lens
+        from jaxcaustics.inverse.variants import design_lens_variants
 
         y, x = np.mgrid[-1:1:12j, -1:1:12j]
         target = np.exp(-((x - 0.2) ** 2 + y**2) / 0.2) + 0.1
@@ -237,11 +238,11 @@ SPEC = dict(width=0.05, height=0.05, thickness=0.01, levels=(8,), max_steps=2)
     ],
 )
 def test_design_variants_reject_bad_arguments(kwargs, match, monkeypatch):
-    from jaxcaustics.inverse import design
+    from jaxcaustics.inverse import variants
 
     def forbidden(*args, **kwargs):
         raise AssertionError("the optimisation started before the arguments were checked")
 
-    monkeypatch.setattr(design, "_solve_level", forbidden)
+    monkeypatch.setattr(variants, "iterate_traced", forbidden)
     with pytest.raises(ValueError, match=match):
         design_lens_variants(TARGET, **{**SPEC, **kwargs})

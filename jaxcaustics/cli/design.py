@@ -23,10 +23,13 @@ import numpy as np
 
 from .. import reference
 from ..inverse.checkpoint import run_rounds
-from ..inverse.design import default_levels, design_lens, resample_corners, transport_shape
+from ..inverse.design import design_lens
 from ..inverse.export import export_lens
+from ..inverse.numerics import resample_corners
+from ..inverse.poisson_levels import default_levels
 from ..inverse.sequence import frame_paths, load_frames, recover_sequence
 from ..inverse.solvers import SOLVER_NAMES
+from ..inverse.transport_start import transport_shape
 from ..inverse.verify import verify_lens
 from ..io.images import check_folder, read_image, write_exr, write_png
 from ..scene.scene import DirectionalLight, HeightField, PlaneReceiver, WaterScene

@@ -76,9 +76,10 @@ from ..scene.scene import (
     check_ior,
     check_positive_scalar,
 )
-from ..scene.surface import height_and_gradient
 from .camera import camera_blur, deconvolve
+from .numerics import check_irradiance, resample_heights, weighted_laplacian
 from .solvers import (
+    MAX_CG_STEPS,
     SOLVER_NAMES,
     SolverLike,
     check_solver,
@@ -198,22 +199,6 @@ class RecoveryResult:
 # ------------------------------------------------------------------ the problem
 
 
-# conjugate-gradient steps per linear solve: far beyond what any solve here needs (a few
-# hundred at most); a larger request is runaway work, refused before anything runs
-MAX_CG_STEPS = 10_000
-
-
-def weighted_laplacian(u: Array, boundary: str, wx: Array, wy: Array) -> Array:
-    if boundary == "periodic":
-        east, west = jnp.roll(u, -1, 1), jnp.roll(u, 1, 1)
-        north, south = jnp.roll(u, -1, 0), jnp.roll(u, 1, 0)
-    else:
-        p = jnp.pad(u, 1, mode="edge")
-        east, west = p[1:-1, 2:], p[1:-1, :-2]
-        north, south = p[2:, 1:-1], p[:-2, 1:-1]
-    return wx * (east + west - 2.0 * u) + wy * (north + south - 2.0 * u)
-
-
 class _Problem(eqx.Module):
     """The residual function ``u -> (image misfit, smoothness, mean)`` of one level."""
 
@@ -265,26 +250,6 @@ def _make_solver(solver, rtol: float, atol: float, cg_steps: int, learning_rate:
     return make_solver(solver, rtol=rtol, atol=atol, cg_steps=cg_steps, learning_rate=learning_rate)
 
 
-def _grid(extent: np.ndarray, shape: tuple[int, int], dtype) -> tuple[Array, Array]:
-    rows, cols = shape
-    x0, x1, y0, y1 = (float(v) for v in extent)
-    xs = x0 + (np.arange(cols) + 0.5) * (x1 - x0) / cols
-    ys = y0 + (np.arange(rows) + 0.5) * (y1 - y0) / rows
-    gx, gy = np.meshgrid(xs, ys)
-    return jnp.asarray(gx, dtype), jnp.asarray(gy, dtype)
-
-
-def resample_heights(heights, extent, shape: tuple[int, int], boundary: str = "periodic"):
-    """`heights` on a ``shape`` grid over the same `extent`, through the surface's own
-    bicubic interpolant (periodic or clamped): the coarse-to-fine upsampling."""
-    heights = jnp.asarray(heights)
-    if tuple(heights.shape) == tuple(shape):
-        return heights
-    surface = HeightField(heights, extent, boundary)
-    gx, gy = _grid(np.asarray(extent), shape, heights.dtype)
-    return height_and_gradient(surface, gx, gy)[0]
-
-
 # ------------------------------------------------------------------ validation
 
 
@@ -313,18 +278,6 @@ def load_target(target, ior) -> np.ndarray:
     if arr.shape[0] * arr.shape[1] > MAX_PIXELS:
         raise ValueError(f"`target` {arr.shape} has over {MAX_PIXELS} pixels (4096^2)")
     return check_irradiance(arr, "there is no caustic to match")
-
-
-def check_irradiance(target: np.ndarray, if_dark: str) -> np.ndarray:
-    """Checks that `target` (an array) is a usable irradiance image: finite,
-    non-negative, not all zeros (the error then says `if_dark`). Returns it."""
-    if not np.all(np.isfinite(target)):
-        raise ValueError("`target` contains NaN or infinite values")
-    if np.any(target < 0):
-        raise ValueError("`target` must be non-negative (an irradiance image)")
-    if not np.any(target > 0):
-        raise ValueError(f"`target` is all zeros: {if_dark}")
-    return target
 
 
 def _result_window(levels, stages, samples_x, channels_y):

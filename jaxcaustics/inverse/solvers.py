@@ -28,6 +28,10 @@ SOLVER_NAMES: tuple[str, ...] = get_args(SolverName)
 
 SolverLike = SolverName | optx.AbstractLeastSquaresSolver | optx.AbstractMinimiser
 
+# conjugate-gradient steps per linear solve: far beyond what any solve here needs (a few
+# hundred at most); a larger request is runaway work, refused before anything runs
+MAX_CG_STEPS = 10_000
+
 
 def check_solver(solver, name: str = "solver") -> SolverLike:
     """`solver` if it is one of `SOLVER_NAMES` or an Optimistix least-squares solver or

@@ -49,6 +49,7 @@ import numpy as np
 
 from .._checks import check_bool, check_int, check_number, check_real_array
 from ..scene.surface import bilinear
+from .numerics import neumann_poisson
 
 _ARMIJO = (0.95, 0.25, 0.75)  # step scale factor, lower and upper Armijo-Goldstein bounds
 _PATIENCE = 8  # iterations without improvement that count as a stall
@@ -133,18 +134,6 @@ def pushforward(potential: jax.Array, density: jax.Array, h, samples: int = 3):
 
     total = jax.lax.fori_loop(0, samples * samples, add_sample, jnp.zeros_like(area))
     return jnp.maximum(area, 0.0) / (h * h) * total / samples**2
-
-
-@jax.jit
-def neumann_poisson(rhs: jax.Array, dx, dy) -> jax.Array:
-    """Solve ``Laplacian(u) = rhs`` on a cell-centred grid with zero-flux (Neumann)
-    boundaries by a DCT-II; the mean of ``rhs`` is ignored and ``u`` has zero mean."""
-    rows, cols = rhs.shape
-    coef = jax.scipy.fft.dctn(rhs, type=2, norm="ortho")
-    ky = (2.0 * jnp.cos(jnp.pi * jnp.arange(rows) / rows) - 2.0) / dy**2
-    kx = (2.0 * jnp.cos(jnp.pi * jnp.arange(cols) / cols) - 2.0) / dx**2
-    lam = (ky[:, None] + kx[None, :]).at[0, 0].set(1.0)
-    return jax.scipy.fft.idctn((coef / lam).at[0, 0].set(0.0), type=2, norm="ortho")
 
 
 def _normalised(rho: jax.Array, mass) -> jax.Array:

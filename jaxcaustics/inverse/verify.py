@@ -19,8 +19,8 @@ from .. import reference
 from .._checks import check_int, check_real_array
 from ..scene.mesh import Mesh, MeshScene
 from ..scene.scene import DirectionalLight, LensScene, PlaneReceiver
-from .design import check_mask
 from .export import lens_solid
+from .lens_setup import check_mask
 
 SUN_DIAMETER_DEG = 0.53
 # most photons per axis of the reference traces (16384^2: hours through the solid) and

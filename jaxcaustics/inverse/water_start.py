@@ -49,6 +49,7 @@ import numpy as np
 
 from ..scene.surface import catmull_rom, pad_heights, sample_grid
 from ..trace.optics import refract, refract_components
+from .numerics import safe_log_area
 from .solvers import half_squares
 from .transport import transport_map
 
@@ -67,13 +68,6 @@ def flat_shift(direction, ior: float, rest_depth: float) -> np.ndarray:
     t, _ = refract(jnp.asarray(d / np.linalg.norm(d)), jnp.array([0.0, 0.0, 1.0]), 1.0 / ior)
     t = np.asarray(t, float)
     return rest_depth * t[:2] / -t[2]
-
-
-def safe_log_area(area: jax.Array, floor) -> jax.Array:
-    """``log(area)``, continued smoothly (and monotonically) below `floor` so that folded
-    (negative) cells give a large finite residual with a useful gradient."""
-    safe = jnp.where(area > floor, area, floor)
-    return jnp.where(area > floor, jnp.log(safe), jnp.log(floor) + (area - floor) / floor)
 
 
 def corner_displacement(target: np.ndarray, boundary: str, iterations: int):

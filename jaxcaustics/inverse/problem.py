@@ -1,0 +1,148 @@
+"""What is being made, as data: the element, the blank's outline, the light, the screen.
+
+A `DesignProblem` says what `jaxcaustics.design` designs; how it is solved (the
+transport start, the image refinement, the Poisson levels) is said apart, by the
+strategies. Every part is an Equinox Module checked when it is built, so a bad problem
+is refused by name before anything is compiled.
+
+Lengths are metres. The element's bottom face lies at ``z = screen.distance`` above the
+screen (``z = 0``); the blank's outline is centred on ``x = y = 0``; light travels
+towards the element and through it down to the screen.
+"""
+
+from __future__ import annotations
+
+import math
+
+import equinox as eqx
+import numpy as np
+
+from .._checks import check_real_array
+from ..scene.scene import DirectionalLight, PointLight
+
+
+def _length(value, name: str) -> float:
+    """A positive, finite length in metres, or a `ValueError` naming `name`."""
+    if isinstance(value, (str, bytes, bool)):
+        raise ValueError(f"`{name}` must be a positive number (metres), got {value!r}")
+    try:
+        v = float(value)
+    except (TypeError, ValueError) as err:
+        raise ValueError(f"`{name}` must be a positive number (metres), got {value!r}") from err
+    if not (math.isfinite(v) and v > 0):
+        raise ValueError(f"`{name}` must be positive and finite (metres), got {value!r}")
+    return v
+
+
+class Lens(eqx.Module):
+    """A refractive lens milled into a blank of glass or acrylic.
+
+    **Arguments:**
+
+    - `thickness`: the blank's thickness (metres), from the flat bottom face to the
+      highest point of the designed top surface; the relief is milled into it.
+    - `ior`: index of refraction (> 1; one number: design one colour at a time).
+    """
+
+    thickness: float = eqx.field(static=True)
+    ior: float = eqx.field(static=True)
+
+    def __init__(self, thickness, ior=1.5):
+        self.thickness = _length(thickness, "thickness")
+        if isinstance(ior, (list, tuple, np.ndarray)):
+            raise ValueError("`ior` must be a single number (design one channel at a time)")
+        self.ior = _length(ior, "ior")
+        if self.ior <= 1.0:
+            raise ValueError(f"`ior` must be > 1 for a glass lens in air, got {ior}")
+
+
+class Rectangle(eqx.Module):
+    """A rectangular blank, `width` along x by `height` along y (metres), centred."""
+
+    width: float = eqx.field(static=True)
+    height: float = eqx.field(static=True)
+
+    def __init__(self, width, height):
+        self.width, self.height = _length(width, "width"), _length(height, "height")
+
+    @property
+    def extent(self) -> np.ndarray:
+        """``(x_min, x_max, y_min, y_max)`` of the blank."""
+        return np.array([-self.width / 2, self.width / 2, -self.height / 2, self.height / 2])
+
+
+class Screen(eqx.Module):
+    """The screen the caustic falls on, parallel to the element's bottom face.
+
+    **Arguments:**
+
+    - `distance`: from the element's bottom face down to the screen (metres).
+    - `extent`: ``(x_min, x_max, y_min, y_max)`` of the screen (metres); ``None``: the
+      flat element's footprint (the outline traced to the screen under the light).
+
+    The pixel grid is the target's.
+    """
+
+    distance: float = eqx.field(static=True)
+    extent: tuple[float, float, float, float] | None = eqx.field(static=True)
+
+    def __init__(self, distance, extent=None):
+        self.distance = _length(distance, "screen_distance")
+        if extent is not None:
+            e = check_real_array(extent, "screen_extent").astype(float)
+            ordered = e.shape == (4,) and e[1] > e[0] and e[3] > e[2]
+            if not (ordered and np.isfinite(e).all()):
+                raise ValueError(
+                    f"`screen_extent` must be (x_min, x_max, y_min, y_max), got {extent!r}"
+                )
+            extent = tuple(float(v) for v in e)
+        self.extent = extent
+
+
+class DesignProblem(eqx.Module):
+    """A caustic element to design: what it is, its outline, its light and its screen.
+
+    **Arguments:**
+
+    - `element`: a `Lens` (index, blank thickness).
+    - `outline`: the blank's outline, a `Rectangle`.
+    - `screen`: a `Screen` (its distance below the element, its extent).
+    - `light`: a `DirectionalLight` (any angle, travelling down) or a `PointLight` above
+      the element; default: collimated, straight down.
+
+    For example, the quickstart's lens: ``DesignProblem(Lens(thickness=0.02),
+    Rectangle(0.1, 0.1), Screen(distance=0.5))``.
+    """
+
+    element: Lens
+    outline: Rectangle
+    screen: Screen
+    light: DirectionalLight | PointLight
+
+    def __init__(self, element, outline, screen, light=None):
+        if not isinstance(element, Lens):
+            raise ValueError(f"`element` must be a Lens, got {type(element).__name__}")
+        if not isinstance(outline, Rectangle):
+            raise ValueError(f"`outline` must be a Rectangle, got {type(outline).__name__}")
+        if not isinstance(screen, Screen):
+            raise ValueError(f"`screen` must be a Screen, got {type(screen).__name__}")
+        if light is None:
+            light = DirectionalLight(np.array([0.0, 0.0, -1.0]))
+        elif not isinstance(light, (DirectionalLight, PointLight)):
+            raise ValueError(
+                f"`light` must be a DirectionalLight or a PointLight, got {type(light).__name__}"
+            )
+        if isinstance(light, PointLight):
+            top = screen.distance + element.thickness
+            height = float(np.asarray(light.position)[2])
+            if not height > top:
+                raise ValueError(
+                    f"`light`: the point light at z = {height:.4g} m is not above the "
+                    f"element's top (z = {top:.4g} m): light must come from above"
+                )
+        self.element, self.outline, self.screen, self.light = element, outline, screen, light
+
+    @property
+    def top(self) -> float:
+        """Height of the element's top rest plane above the screen (metres)."""
+        return self.screen.distance + self.element.thickness

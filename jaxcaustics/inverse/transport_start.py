@@ -1,0 +1,409 @@
+"""The transport start of lens design: where every photon must land, then heights that
+send it there (`TransportStart`).
+
+The irradiance residual of the Poisson levels needs light everywhere (``log E``) and a
+start close to the solution; high-contrast targets (black backgrounds, thin lettering,
+bright dots) meet neither. So the design first solves where every photon must land: the
+quadratic-cost optimal transport (`jaxcaustics.inverse.transport.transport_map`, the
+back-and-forth method) from the flux the aperture sends (uniform for collimated light,
+the point light's falloff otherwise) to the target on the screen, both on the heights
+grid (four times the target's resolution up to 512 samples a side); zeros need no
+floor. The map's corners are the landing points of the photon grid's vertices. The
+heights are then fitted to those landing points with the exact optics
+(`LensModel.vertex_rays`: Snell at both faces, the thickness, point or oblique light) by
+Optimistix's fixed-point iteration of a preconditioned Gauss-Newton step: the exact
+gradient ``J^T r`` (a VJP), divided in the DCT basis by the weak-lens normal operator
+``(D / pixel)^2 G^T G`` (``G``: the gradient of the heights at the photon vertices). In
+the weak-lens limit the first step is the Brenier potential itself (heights = (potential
+- |x|^2 / 2) / D); the next ones correct for the real optics.
+
+The lens's surface keeps its edge slope out to the rim (`HeightField`'s "extrapolate",
+`LENS_BOUNDARY`): a clamped one levels off over the outermost half sample and sends that
+light back towards the screen's edge (measured on twelve dots: the outermost ring of
+cells put all its light on black; 3.07% of the light on black in all, 2.65% with the rim
+extrapolated). Under point or oblique light, rays that lean outwards at an edge lying
+below the top's rest plane would meet the surface beyond the aperture (where no heights
+steer them: their light lined the screen's edge); there the edge is bevelled up to the
+rest plane, the transport is solved again without the band of the aperture whose light
+the bevel throws away, and the fit continues from its heights (`_edge_bevel`; measured
+on a silhouette under a point light: relative L2 0.133 to 0.055, at the cost of a second
+transport). Where the target has dark regions the map jumps across them and the fitted
+surface (smooth on its grid) spreads a little light over the gaps: the image refinement
+(`jaxcaustics.inverse.image_refine`) finishes those.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Sequence
+from typing import TYPE_CHECKING, ClassVar
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+import optimistix as optx
+
+from .._checks import check_int, check_number
+from .._warnings import warn_user
+from ..scene.scene import DirectionalLight
+from ..scene.surface import sample_grid
+from .driver import iterate
+from .lens_model import (
+    LENS_BOUNDARY,
+    LensModel,
+    fit_symbol,
+    gradient_at_vertices,
+    level_model,
+    level_shape,
+    vertex_sampling,
+)
+from .numerics import area_average, binomial_smooth, resample_corner_grid, resample_corners
+from .transport import MAX_ITERATIONS, transport_map
+
+if TYPE_CHECKING:
+    from .lens_setup import Setup
+
+TRANSPORT_MAX = 512  # the transport grid's longest side, at most
+
+
+def transport_shape(target_shape: Sequence[int], width: float, height: float) -> tuple[int, int]:
+    """The heights (and transport) grid of the transport start: the target's longer side
+    times the largest factor in 1..4 that stays within `TRANSPORT_MAX` samples (at least
+    the target's own size), the other side in proportion to the aperture."""
+    n = max(int(v) for v in target_shape)
+    factor = max(1, min(4, TRANSPORT_MAX // n))
+    return level_shape(min(n * factor, max(n, TRANSPORT_MAX)), width, height)
+
+
+def _source_density(light, aperture, shape, top: float) -> np.ndarray:
+    """The flux density the aperture receives at its cells' centres, ``(rows, cols)``:
+    uniform for a directional light, ``I |cos| / r^2`` for a point light."""
+    if isinstance(light, DirectionalLight):
+        return np.ones(shape)
+    x0, x1, y0, y1 = aperture
+    rows, cols = shape
+    px, py = np.meshgrid(
+        x0 + (np.arange(cols) + 0.5) * (x1 - x0) / cols,
+        y0 + (np.arange(rows) + 0.5) * (y1 - y0) / rows,
+    )
+    offset = np.stack([px, py, np.full_like(px, top)], axis=-1) - np.asarray(light.position)
+    r2 = np.sum(offset**2, axis=-1)
+    return np.abs(offset[..., 2]) / r2**1.5
+
+
+def _bicubic(image: jax.Array, px: jax.Array, py: jax.Array) -> jax.Array:
+    """`sample_grid` with edge samples extended: the landing goals read at the rest-plane
+    crossings of oblique rays, which drift across the cells."""
+    return sample_grid(image, px, py, "clamp")
+
+
+class _LandingFit(eqx.Module):
+    """The landing-point fit as a fixed point ``h = h - M^-1 J^T r(h)`` (Optimistix
+    `FixedPointIteration`): `r` the misplacement of the photon grid's vertices in
+    screen pixels, `J^T r` its exact gradient, `M` the weak-lens normal operator in the
+    DCT basis (`fit_symbol`). The auxiliary output is the RMS misplacement (pixels)."""
+
+    problem: LensModel
+    goal_x: jax.Array  # (P0, P1) where the rays through the vertices must land, metres
+    goal_y: jax.Array
+    symbol: jax.Array  # (rows, cols)
+    pixel: jax.Array  # (2,) screen pixel size, metres
+    sampling: tuple  # bicubic weights at the vertices (`vertex_sampling`)
+
+    def residual(self, h):
+        """Misplacement (screen pixels) of the rays hitting the surface above the
+        vertices: each should land where the transport sends the rest-plane point it
+        crossed (the goal read there by `_bicubic`; the vertex itself for vertical
+        light)."""
+        x, y, rest_x, rest_y = self.problem.vertex_rays(h, self.sampling)
+        rows, cols = self.goal_x.shape
+        x0, x1, y0, y1 = self.problem.scene.surface.extent
+        u = (rest_x - x0) / (x1 - x0) * (cols - 1) + 0.5  # pixel-centre convention
+        v = (rest_y - y0) / (y1 - y0) * (rows - 1) + 0.5
+        gx, gy = _bicubic(self.goal_x, u, v), _bicubic(self.goal_y, u, v)
+        return (x - gx) / self.pixel[0], (y - gy) / self.pixel[1]
+
+    def __call__(self, h, args=None):
+        r, vjp = jax.vjp(self.residual, h)
+        (g,) = vjp(tuple(_edge_weighted(c) for c in r))
+        coef = jax.scipy.fft.dctn(g, type=2, norm="ortho") / self.symbol
+        step = jax.scipy.fft.idctn(coef.at[0, 0].set(0.0), type=2, norm="ortho")
+        rms = jnp.sqrt(0.5 * (jnp.mean(r[0] ** 2) + jnp.mean(r[1] ** 2)))
+        return h - step, rms
+
+
+def _edge_weighted(r: jax.Array) -> jax.Array:
+    """`r` with its border rows and columns weighted by `_EDGE_WEIGHT` (corners by its
+    square), for the fit's step. Under the "extrapolate" boundary an edge vertex sees the
+    checkerboards of the edge samples (``h[-1] = 2 h[0] - h[1]``) that the interior
+    vertices, and so the DCT symbol, hardly see: the step's largest gain over the
+    symbol's is 7.6 unweighted (the fit diverged at 512^2), 1.69 weighted, 1.65 for the
+    clamped surface (measured on a 24^2 grid)."""
+    rows = jnp.ones(r.shape[0], r.dtype).at[jnp.array([0, -1])].set(_EDGE_WEIGHT)
+    cols = jnp.ones(r.shape[1], r.dtype).at[jnp.array([0, -1])].set(_EDGE_WEIGHT)
+    return r * rows[:, None] * cols[None, :]
+
+
+_EDGE_WEIGHT = 0.2
+
+
+@eqx.filter_jit
+def _landing_jvp(problem: LensModel, sampling, v: jax.Array):
+    """How the vertices' landing points ``(x, y)`` move for a change `v` of the flat
+    lens's heights (a JVP; jitted: eagerly it costs seconds in per-op compilations)."""
+
+    def landing(h):
+        return problem.vertex_rays(h, sampling)[:2]
+
+    return jax.jvp(landing, (jnp.zeros_like(v),), (v,))[1]
+
+
+def _landing_gain(problem: LensModel, sampling, shape, dx, dy, pixel) -> tuple[float, float]:
+    """How far the vertices move on the screen (pixels) per unit slope of the heights,
+    along x and y, measured on the flat lens (a JVP along the smoothest cosine mode):
+    the weak-lens ``D / pixel``, for any light (a point light's diverging rays, oblique
+    incidence) without a formula per case."""
+    rows, cols = shape
+    y = np.cos(np.pi * (np.arange(rows) + 0.5) / rows)
+    x = np.cos(np.pi * (np.arange(cols) + 0.5) / cols)
+    gains = []
+    for axis, mode in enumerate((np.broadcast_to(x, shape), np.broadcast_to(y[:, None], shape))):
+        v = jnp.asarray(mode * 1e-3 * (dx if axis == 0 else dy), pixel.dtype)
+        moved = _landing_jvp(problem, sampling, v)[axis]
+        slope = gradient_at_vertices(v, dx, dy)[axis]
+        gains.append(float(jnp.sum(moved * slope) / jnp.sum(slope * slope)) / float(pixel[axis]))
+    return gains[0], gains[1]
+
+
+def _transport_goal(
+    setup: Setup, shape, problem: LensModel, iterations: int, keep=None, smooth=False
+):
+    """The landing points of the photon vertices: the optimal transport from the
+    aperture's flux (times `keep` per cell, if given) to the target, on the heights
+    grid, in `iterations` at most; `smooth`: the map smoothed by a
+    [1, 2, 1] / 4 kernel along each axis (for a fit that reads it between its samples:
+    leaning light). Returns ``(goal_x, goal_y, transport)`` (metres; the
+    `TransportMap`)."""
+
+    top = setup.screen_distance + setup.thickness
+    source = _source_density(setup.light, setup.aperture, shape, top)
+    if keep is not None:
+        source = source * keep
+    target = area_average(setup.goal, shape)
+    plan = transport_map(source, target, iterations=iterations, warn=False)
+    rows, cols = shape
+    h = 1.0 / max(rows, cols)
+    sx0, sx1, sy0, sy1 = setup.screen
+    gx = sx0 + (sx1 - sx0) * plan.map_x / (cols * h)
+    gy = sy0 + (sy1 - sy0) * plan.map_y / (rows * h)
+    if smooth:  # the discrete Legendre transforms' one-cell staircase, read between cells
+        gx, gy = binomial_smooth(gx), binomial_smooth(gy)
+    if gx.shape != tuple(problem.grid):  # a photon grid finer than the heights
+        gx, gy = (resample_corner_grid(g, problem.grid) for g in (gx, gy))
+    dtype = jnp.result_type(float)
+    return jnp.asarray(gx, dtype), jnp.asarray(gy, dtype), plan
+
+
+# the first pass under leaning light (transport iterations, fit steps): enough to know
+# the edges' heights, which set the bevel (measured on a silhouette under a point light:
+# relative L2 0.055 as after a full first pass, 79 s -> 70 s)
+_ROUGH_PASS = (30, 3)
+
+
+def _edge_bevel(setup: Setup, h: np.ndarray) -> tuple[np.ndarray, np.ndarray, int]:
+    """Where the aperture's edges must rise to the top's rest plane, and how much of the
+    aperture's light that bevel takes.
+
+    Photons enter the lens through the rest plane of the top face (the reference's
+    convention, `trace_lens`); a ray that leans outwards and crosses the rest plane
+    within ``ring = -h_edge * tan(lean)`` of an edge lying below it meets the surface
+    beyond the aperture, where the surface is flat: that light cannot be steered and
+    lands along the screen's edge (measured, a point light 1.5 screen distances above the lens:
+    1.2% of the flux on the edge pixels, relative L2 0.133 where it is 0.097 without
+    the screen's 3-pixel border). On each edge whose ring is wider than a tenth of a
+    cell, the heights rise linearly to 0 over ``k = ceil(ring / cell) + 1`` cells (the
+    bevel, steep enough to throw its light off the screen); the transport must leave
+    out the band whose rays reach the bevel: at each position along the edge, as far
+    in as the ray that meets the bevel's inner end crossed the rest plane.
+
+    Returns ``(weight, keep, k)``: the bevel's weight (``h <- (1 - weight) h``), the
+    fraction of each cell's light outside the band (both ``(rows, cols)``) and the
+    widest bevel in cells (0: no edge needs one)."""
+    rows, cols = h.shape
+    h = h - h.max()
+    x0, x1, y0, y1 = setup.aperture
+    dx, dy = (x1 - x0) / cols, (y1 - y0) / rows
+    top = setup.screen_distance + setup.thickness
+    xs = x0 + (np.arange(cols) + 0.5) * dx
+    ys = y0 + (np.arange(rows) + 0.5) * dy
+    j, i = np.arange(cols), np.arange(rows)
+    # per edge: the heights inwards from it (index 0 on the edge), its points, the
+    # outward axis and sign, the cell, the distance of every sample from it in cells
+    sides = [
+        (h[:, ::-1], np.c_[np.full(rows, x1), ys], 0, 1.0, dx, (cols - 1 - j)[None, :]),
+        (h, np.c_[np.full(rows, x0), ys], 0, -1.0, dx, j[None, :]),
+        (h[::-1, :].T, np.c_[xs, np.full(cols, y1)], 1, 1.0, dy, (rows - 1 - i)[:, None]),
+        (h.T, np.c_[xs, np.full(cols, y0)], 1, -1.0, dy, i[:, None]),
+    ]
+    weight = np.zeros_like(h)
+    keep = np.ones_like(h)
+    widest = 0
+    for inwards, points, axis, sign, cell, distance in sides:
+        if isinstance(setup.light, DirectionalLight):
+            d = np.asarray(setup.light.direction, float)[None, :]
+        else:
+            d = np.c_[points, np.full(len(points), top)] - np.asarray(setup.light.position, float)
+        lean = np.maximum(sign * d[:, axis] / np.abs(d[:, 2]), 0.0)  # outward run per descent
+        ring = float(np.max(-inwards[:, 0] * lean))
+        if ring <= 0.1 * cell:
+            continue
+        k = int(np.ceil(ring / cell)) + 1
+        most = len(inwards[0]) // 4  # wider, a bevel would take most of the light
+        if k > most:
+            warn_user(
+                f"design: light leaning out at an edge meets the surface beyond the "
+                f"aperture over {k - 1} cells, more than the bevel's {most}: its light "
+                f"lines the screen's edge (a smaller relief, a farther light or a larger "
+                f"aperture shrink it)",
+            )
+            k = most
+        widest = max(widest, k)
+        weight = np.maximum(weight, np.clip(1.0 - distance / k, 0.0, 1.0))
+        width = k - inwards[:, k] * lean / cell  # in cells, per position along the edge
+        width = width[:, None] if axis == 0 else width[None, :]
+        keep = np.minimum(keep, np.clip(distance + 1.0 - width, 0.0, 1.0))
+    return weight, keep, widest
+
+
+class TransportStart(eqx.Module):
+    """The transport start and its landing fit: one level on the heights grid.
+
+    **Arguments:**
+
+    - `grid`: heights samples along the aperture's longer side (the other side in
+      proportion); ``None``: the target's longer side times 4, at most `TRANSPORT_MAX`
+      (`transport_shape`).
+    - `iterations`: back-and-forth iterations of the transport, at most.
+    - `max_steps`: steps of the landing fit, at most (it also stops when a step moves no
+      vertex by 1/100 of a pixel, or when its misfit stops falling for three steps).
+    - `floor`: a uniform irradiance added to the unit-mean target (black regions get
+      this much); 0: black stays black.
+    - `oversample`: photon vertices per heights sample along each axis (the map
+      resampled bilinearly to them).
+    """
+
+    grid: int | None = None
+    iterations: int = 100
+    max_steps: int = 40
+    floor: float = 0.0
+    oversample: int = 1
+    # the designed surface's `HeightField` boundary (`LENS_BOUNDARY` says why)
+    boundary: ClassVar[str] = LENS_BOUNDARY
+
+    def __init__(self, grid=None, iterations=100, max_steps=40, floor=0.0, oversample=1):
+        self.grid = None if grid is None else check_int(grid, "grid", 4)
+        self.iterations = check_int(iterations, "iterations", 1, MAX_ITERATIONS)
+        self.max_steps = check_int(max_steps, "max_steps", 1)
+        self.floor = check_number(floor, "floor", low=0.0, high=1.0, high_open=True)
+        self.oversample = check_int(oversample, "oversample", 1)
+
+    def shape(self, target_shape: Sequence[int], width: float, height: float):
+        """The heights grid for a target of `target_shape` on a `width` x `height`
+        aperture."""
+        if self.grid is not None:
+            return level_shape(self.grid, width, height)
+        return transport_shape(target_shape, width, height)
+
+    def solve(self, setup: Setup, history: list, callback):
+        """The transport and the landing fit. Returns ``(heights, level_reports,
+        result)``: heights ``(rows, cols)`` with ``max = 0`` (metres), a report per stage
+        (``"result"``: ``optx.RESULTS``)."""
+        shape = setup.shapes[-1]
+        t0 = time.perf_counter()
+        model = level_model(setup, shape, self.oversample)
+        # light that leans out at the edges may need a bevel (`_edge_bevel`) and a second
+        # transport; the first pass then only has to find the edges' heights: a short one
+        leaning = not setup.vertical
+        rough = min(_ROUGH_PASS[0], self.iterations) if leaning else self.iterations
+        goal_x, goal_y, plan = _transport_goal(setup, shape, model, rough, smooth=leaning)
+        transport_s = time.perf_counter() - t0
+        transport_steps = plan.iterations
+        rows, cols = shape
+        dx, dy = setup.width / cols, setup.height / rows
+        trows, tcols = setup.target_shape
+        sx0, sx1, sy0, sy1 = setup.screen
+        dtype = jnp.result_type(float)
+        pixel = jnp.asarray([(sx1 - sx0) / tcols, (sy1 - sy0) / trows], dtype)
+        sampling = vertex_sampling(shape, setup.aperture, model.grid, setup.boundary)
+        gain = _landing_gain(model, sampling, shape, dx, dy, pixel)
+        symbol = jnp.asarray(fit_symbol(shape, dx, dy, *gain), dtype)
+        fit = _LandingFit(model, goal_x, goal_y, symbol, pixel, sampling)
+        # converged: a step moves no vertex by more than 1/100 of a pixel (weak-lens
+        # estimate)
+        atol = 0.01 * min(dx / gain[0], dy / gain[1])
+        solver = optx.FixedPointIteration(rtol=0.0, atol=atol)
+        if setup.initial is not None:
+            initial = np.asarray(setup.initial, float)
+            h0 = jnp.asarray(resample_corners(initial, shape, setup.boundary), dtype)
+        else:
+            h0 = jnp.zeros(shape, dtype)
+        info = {"level": 0, "shape": shape}
+        first_steps = min(_ROUGH_PASS[1], self.max_steps) if leaning else self.max_steps
+        run = iterate(
+            fit, solver, h0, None, max_steps=first_steps, history=history,
+            callback=callback, info=info, patience=_PATIENCE,
+        )  # fmt: skip
+        h = np.asarray(run.y)
+        if not np.all(np.isfinite(h)):
+            raise RuntimeError(f"the landing fit ({shape}) gave heights that are not finite")
+        weight, keep, bevel = _edge_bevel(setup, h)
+        steps, seconds, compile_s = run.steps, run.seconds, run.compile_seconds
+        if leaning:  # in full, without the band that the bevel takes, from these heights
+            t1 = time.perf_counter()
+            goal_x, goal_y, plan = _transport_goal(
+                setup, shape, model, self.iterations, keep, smooth=True
+            )
+            transport_s += time.perf_counter() - t1
+            transport_steps += plan.iterations
+            fit = eqx.tree_at(lambda f: (f.goal_x, f.goal_y), fit, (goal_x, goal_y))
+            run = iterate(
+                fit, solver, jnp.asarray(h, dtype), None, max_steps=self.max_steps,
+                history=history, callback=callback, info=info, patience=_PATIENCE,
+            )  # fmt: skip
+            steps, seconds = steps + run.steps, seconds + run.seconds
+            h = np.asarray(run.y)
+            h = (1.0 - weight) * (h - h.max())
+        h = h - h.max()
+        rms = run.misfit
+        reports = [
+            {
+                "stage": "transport",
+                "shape": shape,
+                "steps": transport_steps,  # both passes' under leaning light
+                "loss": float(plan.residual[-1]),
+                "result": (
+                    optx.RESULTS.successful if plan.converged else optx.RESULTS.max_steps_reached
+                ),
+                "seconds": transport_s,
+                "first_step_seconds": float("nan"),
+            },
+            {
+                "stage": "landing fit",
+                "shape": shape,
+                "steps": steps,
+                "loss": 0.5 * rms**2,
+                "rms_pixels": rms,
+                "loss_per_pixel": 0.5 * rms**2,
+                "result": run.result,  # stalled: it has done what it can
+                "stalled": run.stalled,
+                "bevel_cells": bevel,
+                "seconds": seconds,
+                "first_step_seconds": compile_s,
+            },
+        ]
+        return h, reports, run.result
+
+
+# steps without a 0.1% fall of the landing fit's misfit that end it (`iterate`)
+_PATIENCE = 3
