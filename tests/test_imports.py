@@ -103,7 +103,7 @@ def test_the_walk_sees_the_package():
 # the stages of the data flow, in order: a module imports only from its own group or an
 # earlier stage (scene -> trace -> reconstruct -> methods -> inverse -> cli)
 STAGES = [
-    ("_checks",),
+    ("_checks", "_warnings"),
     ("devices", "io", "reference"),
     ("scene",),
     ("trace",),

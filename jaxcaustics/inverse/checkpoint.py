@@ -29,7 +29,34 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from ..io.images import check_folder
+
 FORMAT = "jaxcaustics-checkpoint-2"
+
+
+def check_checkpoint(checkpoint, resume: bool) -> None:
+    """Checks a `checkpoint` argument (a file path or None) before any work: not a
+    folder, in a folder that is writable (created if missing), and not a file of
+    another kind (a checkpoint is never written over a picture); `resume` needs it."""
+    if checkpoint is None:
+        if resume:
+            raise ValueError("`resume=True` needs a `checkpoint` file to continue from")
+        return
+    if not isinstance(checkpoint, (str, os.PathLike)) or str(checkpoint) == "":
+        raise ValueError(f"`checkpoint` must be a file path or None, got {checkpoint!r}")
+    path = Path(checkpoint)
+    if path.is_dir():
+        raise ValueError(f"`checkpoint` {str(path)!r} is a directory, not a file")
+    if path.is_file():
+        with open(path, "rb") as f:
+            head = f.read(256)
+        if FORMAT.encode() not in head.replace(b"\x00", b""):
+            raise ValueError(
+                f"`checkpoint` {str(path)!r} exists and is not a jaxcaustics checkpoint: "
+                "it is not written over (give another path)"
+            )
+    folder = check_folder(path.parent, "checkpoint")  # writable, or can be made
+    folder.mkdir(parents=True, exist_ok=True)
 
 
 def save_checkpoint(path: str | os.PathLike, state: Any, round_index: int) -> Path:

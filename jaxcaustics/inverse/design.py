@@ -23,6 +23,7 @@ reference (`verify_lens`).
 from __future__ import annotations
 
 import dataclasses
+import os
 import time
 from collections.abc import Callable, Sequence
 from typing import Any, Literal
@@ -34,8 +35,11 @@ from .._checks import check_bool, check_real_array, is_distance, renamed_keyword
 from .._warnings import warn_user
 from ..methods.triangles.method import trace_photons, triangle_window, triangles_image
 from ..scene.scene import DirectionalLight, LensScene, PointLight
+from .checkpoint import check_checkpoint
+from .design_rounds import solve_in_rounds
+from .design_setup import Setup
 from .image_refine import ImageRefinement
-from .lens_setup import Setup, predict_photons_default, prepare
+from .lens_setup import predict_photons_default, prepare
 from .poisson_levels import PoissonLevels, check_levels
 from .problem import DesignProblem, Lens, Rectangle, Screen, _length
 from .solvers import SolverLike
@@ -118,6 +122,9 @@ def design(
     initial=None,
     callback: Callable[[dict], None] | None = None,
     throw: bool = True,
+    checkpoint: str | os.PathLike | None = None,
+    resume: bool = False,
+    progress: bool = False,
 ) -> LensDesign:
     """Design the element of `problem` whose caustic on the screen matches `target`.
 
@@ -144,6 +151,12 @@ def design(
     - `callback`: called after every solver step with a dict (level, shape, step, loss,
       and the number of residuals the loss sums).
     - `throw`: raise if a level's solver fails (otherwise the result says so).
+    - `checkpoint`: a file written after every round (each Poisson level, the transport
+      start, the finish); ``None``: none.
+    - `resume`: continue from `checkpoint` (its rounds are not run again; a checkpoint
+      of another target, problem, strategy or option is refused). Ctrl-C raises
+      `KeyboardInterrupt` and leaves the last round's checkpoint.
+    - `progress`: show a progress bar over the rounds.
 
     **Returns:** a `LensDesign`. A bad problem or option raises `ValueError` naming it
     before anything is compiled. A design whose predicted error exceeds `warn_error`, or
@@ -159,6 +172,9 @@ def design(
     """
     t_start = time.perf_counter()
     throw = check_bool(throw, "throw")
+    resume = check_bool(resume, "resume")
+    progress = check_bool(progress, "progress")
+    check_checkpoint(checkpoint, resume)
     if callback is not None and not callable(callback):
         raise ValueError(f"`callback` must be callable or None, got {type(callback).__name__}")
     setup = prepare(
@@ -174,21 +190,12 @@ def design(
         initial=initial,
     )
     history: list[float] = []
-    h, reports, result = _solve(setup, history, callback, throw)
+    h, reports, result = _solve(setup, history, callback, throw, checkpoint, resume, progress)
     return _finish(setup, h, history, reports, result, t_start)
 
 
-def _solve(setup: Setup, history: list[float], callback, throw: bool):
-    """The start, then the finish: ``(heights, level_reports, result)``."""
-    if isinstance(setup.start, PoissonLevels):
-        h, reports, result = setup.start.solve(setup, history, callback, throw)
-    else:
-        h, reports, result = setup.start.solve(setup, history, callback)
-    if setup.finish is not None:
-        h, report = setup.finish.refine(setup, h, history, callback)
-        if report is not None:
-            reports.append(report)
-    return h, reports, result
+# the work of a design, after every check (tests replace it to show that checks come first)
+_solve = solve_in_rounds
 
 
 def _renamed_keywords(where: str, screen_distance, throw, throw_errors):

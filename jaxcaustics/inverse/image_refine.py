@@ -12,7 +12,6 @@ logarithm needs light everywhere.
 from __future__ import annotations
 
 import time
-from typing import TYPE_CHECKING
 
 import equinox as eqx
 import jax
@@ -23,11 +22,9 @@ import optimistix as optx
 from .._checks import check_int
 from ..methods.triangles.method import caustic_triangles
 from ..scene.scene import LensScene
+from .design_setup import Setup
 from .driver import iterate
 from .lens_model import fit_symbol
-
-if TYPE_CHECKING:
-    from .lens_setup import Setup
 
 
 def _resolved_modes(shape, modes: int) -> np.ndarray:

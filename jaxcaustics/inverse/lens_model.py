@@ -16,8 +16,6 @@ n)``; the continuity equation linearised gives ``D Laplacian(H) = -log(E / mean 
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
-
 import equinox as eqx
 import jax
 import jax.numpy as jnp
@@ -28,10 +26,8 @@ from ..scene.surface import PAD_LOW, catmull_rom, pad_heights, ray_surface_hit
 from ..scene.surface import bilinear as _bilinear
 from ..trace.optics import refract_components
 from ..trace.photons import corner_grid
+from .design_setup import Setup
 from .numerics import area_average, neumann_laplacian, neumann_poisson, safe_log_area
-
-if TYPE_CHECKING:
-    from .lens_setup import Setup
 
 # the transport start's surface boundary (`HeightField`): its edge slope continues to the
 # rim; "clamp" levels it off over the outermost half sample, whose light then lands near

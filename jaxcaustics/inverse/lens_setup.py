@@ -6,10 +6,8 @@ design that cannot run (a bad target or mask, more memory than the machine has).
 
 from __future__ import annotations
 
-import dataclasses
 import os
 import time
-from typing import Any
 
 import jax.numpy as jnp
 import numpy as np
@@ -17,6 +15,7 @@ import numpy as np
 from .._checks import check_int, check_number, check_real_array, check_shape
 from ..methods.triangles.method import band_bytes
 from ..scene.scene import DirectionalLight, HeightField, LensScene, PlaneReceiver, PointLight
+from .design_setup import Setup
 from .image_refine import _REFINE_MEMORY, ImageRefinement
 from .numerics import area_average, check_irradiance, neumann_poisson
 from .poisson_levels import PoissonLevels
@@ -139,54 +138,6 @@ def _check_design_memory(shape, oversample: int, extra: int, photons: int = 0) -
 def predict_photons_default(target_shape) -> int:
     """The predicted caustic's photons per side by default: 4 per pixel side."""
     return 4 * max(target_shape) + 1
-
-
-@dataclasses.dataclass
-class Setup:
-    """A checked design (`prepare`): the problem, its strategies, and what every stage
-    needs."""
-
-    problem: DesignProblem
-    start: TransportStart | PoissonLevels
-    finish: ImageRefinement | None
-    target_shape: tuple[int, int]
-    shapes: list[tuple[int, int]]  # the heights grids, coarse to fine
-    aperture: np.ndarray  # (4,) the blank's extent, metres
-    screen: np.ndarray  # (4,) the screen's extent, metres
-    receiver: PlaneReceiver
-    goal: np.ndarray  # the target at unit mean, masked, plus the floor
-    goal0: np.ndarray  # `goal` on the first grid
-    flux_scale: float  # `goal` times this is the irradiance the lens's flux gives
-    vertical: bool  # collimated light straight down
-    weak: float  # D of the weak-lens relation, metres
-    predict_photons: int | None
-    max_relief: float | None
-    initial: Any
-    timings: dict[str, float]
-    warn_error: float = 0.15
-
-    width = property(lambda self: self.problem.outline.width)
-    height = property(lambda self: self.problem.outline.height)
-    thickness = property(lambda self: self.problem.element.thickness)
-    ior = property(lambda self: self.problem.element.ior)
-    screen_distance = property(lambda self: self.problem.screen.distance)
-    light = property(lambda self: self.problem.light)
-
-    @property
-    def boundary(self) -> str:
-        """The designed surface's `HeightField` boundary (the start's)."""
-        return self.start.boundary
-
-    def lens_scene(self, heights) -> LensScene:
-        """The design's lens with `heights` (bicubic over the aperture, `boundary`)."""
-        return LensScene(
-            HeightField(heights, self.aperture, self.boundary),
-            self.light,
-            self.receiver,
-            self.thickness,
-            self.screen_distance,
-            ior=self.ior,
-        )
 
 
 def _check_initial(initial) -> None:

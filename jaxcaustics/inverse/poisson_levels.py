@@ -19,7 +19,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from typing import TYPE_CHECKING, ClassVar
+from typing import ClassVar
 
 import equinox as eqx
 import jax
@@ -28,13 +28,11 @@ import numpy as np
 import optimistix as optx
 
 from .._checks import check_int, check_number
+from .design_setup import Setup
 from .driver import iterate
 from .lens_model import LensModel, level_model, level_shape, residual_count
 from .numerics import neumann_laplacian, resample_corners
 from .solvers import MAX_CG_STEPS, SolverLike, check_solver, half_squares, is_minimiser, make_solver
-
-if TYPE_CHECKING:
-    from .lens_setup import Setup
 
 
 def default_levels(shape: Sequence[int]) -> tuple[int, ...]:
@@ -138,38 +136,34 @@ class PoissonLevels(eqx.Module):
         levels = self.levels or default_levels(target_shape)
         return [level_shape(n, width, height) for n in levels]
 
-    def solve(self, setup: Setup, history: list, callback, throw: bool = True):
-        """The levels, coarse to fine. Returns ``(heights, level_reports, result)``:
-        heights ``(rows, cols)`` with ``max = 0`` (metres), a report per level."""
-        reports: list[dict] = []
-        result = optx.RESULTS.successful
+    def solve_level(
+        self, setup: Setup, k: int, h: np.ndarray | None, history: list, callback, throw: bool
+    ):
+        """Level `k` from the previous level's heights `h` (``None`` for the first).
+        Returns ``(heights, report, result)``: heights ``(rows, cols)`` on the level's
+        grid with ``max = 0`` (metres)."""
+        shape = setup.shapes[k]
         solver, objective = make_level_solver(self)
-        h = None
-        for k, shape in enumerate(setup.shapes):
-            u, model = level_start(setup, self, k, h)
-            count = residual_count(model)
-            info = {"level": k, "shape": shape, "residuals": count}
-            run = iterate(
-                objective, solver, u, model, max_steps=self.max_steps, history=history,
-                callback=callback, info=info,
-            )  # fmt: skip
-            result = run.result
-            h = level_heights(model, run.y, k, shape, result, throw)
-            loss = history[-1] if history else float("nan")
-            reports.append(
-                {
-                    "stage": "irradiance",
-                    "shape": shape,
-                    "steps": run.steps,
-                    "loss": loss,
-                    "loss_per_pixel": loss / count,
-                    "result": result,
-                    "seconds": run.seconds,
-                    "first_step_seconds": run.compile_seconds,
-                }
-            )
-        assert h is not None
-        return h, reports, result
+        u, model = level_start(setup, self, k, h)
+        count = residual_count(model)
+        info = {"level": k, "shape": shape, "residuals": count}
+        run = iterate(
+            objective, solver, u, model, max_steps=self.max_steps, history=history,
+            callback=callback, info=info,
+        )  # fmt: skip
+        h = level_heights(model, run.y, k, shape, run.result, throw)
+        loss = history[-1] if history else float("nan")
+        report = {
+            "stage": "irradiance",
+            "shape": shape,
+            "steps": run.steps,
+            "loss": loss,
+            "loss_per_pixel": loss / count,
+            "result": run.result,
+            "seconds": run.seconds,
+            "first_step_seconds": run.compile_seconds,
+        }
+        return h, report, run.result
 
 
 def level_start(

@@ -31,10 +31,10 @@ import jax.numpy as jnp
 import numpy as np
 
 from .._checks import check_bool, check_int, check_shape
-from ..io.images import READ_EXTENSIONS, check_folder
+from ..io.images import READ_EXTENSIONS
 from ..methods.twopass import auto_window
 from ..scene.scene import check_ior
-from .checkpoint import run_rounds
+from .checkpoint import check_checkpoint, run_rounds
 from .recover import MIN_WINDOW, START_MISFIT, WINDOW_MARGIN, load_target, recover_surface
 
 
@@ -156,15 +156,7 @@ def recover_sequence(
     warm = check_bool(warm, "warm")
     progress = check_bool(progress, "progress")
     resume = check_bool(resume, "resume")
-    if checkpoint is not None:
-        if not isinstance(checkpoint, (str, os.PathLike)):
-            raise ValueError(f"`checkpoint` must be a file path or None, got {checkpoint!r}")
-        if Path(checkpoint).is_dir():
-            raise ValueError(f"`checkpoint` {str(checkpoint)!r} is a directory, not a file")
-        folder = check_folder(Path(checkpoint).parent, "checkpoint")  # writable, or can be
-        folder.mkdir(parents=True, exist_ok=True)  # made: the first save is after a frame
-    elif resume:
-        raise ValueError("`resume=True` needs a `checkpoint` file to continue from")
+    check_checkpoint(checkpoint, resume)
     if options.get("heights_shape") is not None:
         check_shape(options["heights_shape"], "heights_shape", 2)
     if options.get("samples_x", "auto") != "auto":

@@ -36,7 +36,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Sequence
-from typing import TYPE_CHECKING, ClassVar
+from typing import ClassVar
 
 import equinox as eqx
 import jax
@@ -48,6 +48,7 @@ from .._checks import check_int, check_number
 from .._warnings import warn_user
 from ..scene.scene import DirectionalLight
 from ..scene.surface import sample_grid
+from .design_setup import Setup
 from .driver import iterate
 from .lens_model import (
     LENS_BOUNDARY,
@@ -60,9 +61,6 @@ from .lens_model import (
 )
 from .numerics import area_average, binomial_smooth, resample_corner_grid, resample_corners
 from .transport import MAX_ITERATIONS, transport_map
-
-if TYPE_CHECKING:
-    from .lens_setup import Setup
 
 TRANSPORT_MAX = 512  # the transport grid's longest side, at most
 

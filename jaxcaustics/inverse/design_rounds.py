@@ -1,0 +1,129 @@
+"""A design as rounds (`solve_in_rounds`): each Poisson level, or the transport start,
+then the finish, one round each, checkpointed after every round
+(`jaxcaustics.inverse.checkpoint.run_rounds`), so that an interrupted design resumes
+where it stopped and ends where an uninterrupted one does.
+
+A checkpoint holds every round's heights and a fingerprint of what the design was made
+from (the target as used, the problem, the strategies, the options that change the
+result); resuming a checkpoint of another design is refused, naming the file.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import os
+from pathlib import Path
+
+import jax
+import numpy as np
+import optimistix as optx
+
+from .checkpoint import load_checkpoint, run_rounds
+from .design_setup import Setup
+from .poisson_levels import PoissonLevels
+
+
+def _fingerprint(setup: Setup) -> np.ndarray:
+    """A digest of everything that changes a design's rounds: ``(8,)`` uint32."""
+
+    def text(tree) -> str:
+        leaves, treedef = jax.tree_util.tree_flatten(tree)
+        return str(treedef) + repr([np.asarray(x).tolist() for x in leaves])
+
+    parts = [
+        setup.goal.tobytes(),
+        text((setup.problem, setup.start, setup.finish)),
+        repr(setup.shapes),
+        np.asarray(setup.screen, float).tobytes(),
+        b"" if setup.initial is None else np.asarray(setup.initial, float).tobytes(),
+    ]
+    digest = hashlib.sha256()
+    for part in parts:
+        digest.update(part if isinstance(part, bytes) else part.encode())
+    return np.frombuffer(digest.digest(), np.uint32).copy()
+
+
+def _round_shapes(setup: Setup) -> list[tuple[int, int]]:
+    """The heights grid each round ends on."""
+    shapes = list(setup.shapes) if isinstance(setup.start, PoissonLevels) else [setup.shapes[-1]]
+    return shapes + ([setup.shapes[-1]] if setup.finish is not None else [])
+
+
+def solve_in_rounds(
+    setup: Setup,
+    history: list[float],
+    callback,
+    throw: bool,
+    checkpoint: str | os.PathLike | None = None,
+    resume: bool = False,
+    progress: bool = False,
+):
+    """The start's rounds, then the finish's: ``(heights, level_reports, result)``.
+
+    A round loaded from `checkpoint` (with `resume`) is not run again: its report is
+    ``{"stage": "checkpoint", "shape": ..., "result": RESULTS.successful}`` and its
+    steps are not in `history`. Ctrl-C raises `KeyboardInterrupt` after the last
+    completed round's checkpoint."""
+    shapes = _round_shapes(setup)
+    state = {
+        "heights": tuple(np.zeros(s) for s in shapes),
+        "fingerprint": _fingerprint(setup),
+    }
+    if resume and checkpoint is not None and Path(checkpoint).is_file():
+        saved, _ = load_checkpoint(checkpoint, state)
+        if not np.array_equal(saved["fingerprint"], state["fingerprint"]):
+            raise ValueError(
+                f"`checkpoint` {str(checkpoint)!r} was written by another design (its "
+                "target, problem, strategies or options differ): remove it, or design "
+                "without `resume`"
+            )
+    reports: list[dict] = []
+    results = [optx.RESULTS.successful]  # the design's result: its start's last
+    ran = [0]  # rounds run in this call (the others came from the checkpoint)
+    start, finish = setup.start, setup.finish
+
+    def store(state, k, h):
+        ran[0] += 1
+        heights = list(state["heights"])
+        heights[k] = h
+        return {**state, "heights": tuple(heights)}
+
+    def level(k):
+        def run(state):
+            previous = None if k == 0 else state["heights"][k - 1]
+            h, report, result = start.solve_level(setup, k, previous, history, callback, throw)
+            reports.append(report)
+            results.append(result)
+            return store(state, k, h)
+
+        return run
+
+    def transport(state):
+        h, stage_reports, result = start.solve(setup, history, callback)
+        reports.extend(stage_reports)
+        results.append(result)
+        return store(state, 0, h)
+
+    def refine(state):
+        h, report = finish.refine(setup, state["heights"][-2], history, callback)
+        if report is not None:  # None: nothing to refine
+            reports.append(report)
+        return store(state, len(shapes) - 1, h)
+
+    if isinstance(start, PoissonLevels):
+        rounds = [level(k) for k in range(len(setup.shapes))]
+    else:
+        rounds = [transport]
+    if finish is not None:
+        rounds.append(refine)
+    state, done, interrupted = run_rounds(
+        rounds, state, checkpoint=checkpoint, resume=resume, progress=progress, label="designing"
+    )
+    if interrupted:
+        where = "" if checkpoint is None else f"; resume from {str(checkpoint)!r}"
+        raise KeyboardInterrupt(f"design interrupted after {done} of {len(rounds)} rounds{where}")
+    loaded = [
+        {"stage": "checkpoint", "shape": shape, "result": optx.RESULTS.successful}
+        for shape in shapes[: len(rounds) - ran[0]]
+    ]
+    return np.asarray(state["heights"][-1]), loaded + reports, results[-1]

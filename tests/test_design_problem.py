@@ -1,0 +1,224 @@
+"""`design(problem, target)`: the problem as data, its strategies, and `design_lens` as its
+keyword form (the same designs); bad problems refused by name before anything runs."""
+
+import warnings
+
+import numpy as np
+import optimistix as optx
+import pytest
+
+import jaxcaustics as jc
+import jaxcaustics.inverse.design as design_module
+from jaxcaustics.inverse import driver
+from jaxcaustics.reference import trace_lens
+
+SPEC = dict(width=0.1, height=0.1, thickness=0.02, screen_distance=0.5)
+PROBLEM = jc.DesignProblem(jc.Lens(thickness=0.02), jc.Rectangle(0.1, 0.1), jc.Screen(0.5))
+
+
+def blob(n=16):
+    x = (np.arange(n) + 0.5) / n
+    xx, yy = np.meshgrid(x, x)
+    return 0.3 + np.exp(-((xx - 0.35) ** 2 + (yy - 0.4) ** 2) / 0.02)
+
+
+def letters(n=24):
+    """A bright bar and a dot on black (dark on more than 10% of the screen: the image
+    refinement runs)."""
+    t = np.zeros((n, n))
+    t[6:9, 4:20] = 1.0
+    t[14:19, 10:15] = 1.0
+    return t
+
+
+def same(a, b):
+    np.testing.assert_array_equal(a.heights, b.heights)
+    np.testing.assert_array_equal(a.predicted, b.predicted)
+    assert a.loss_history == b.loss_history
+    assert [r["stage"] for r in a.levels] == [r["stage"] for r in b.levels]
+
+
+# ----------------------------------------------------------------- the same designs
+
+
+def test_design_lens_is_design_with_its_keywords_under_the_transport_start():
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        old = jc.design_lens(letters(), **SPEC, refine_steps=2, max_steps=6)
+        new = jc.design(
+            PROBLEM, letters(), start=jc.TransportStart(max_steps=6), finish=jc.ImageRefinement(2)
+        )
+    same(old, new)
+    assert [r["stage"] for r in new.levels] == ["transport", "landing fit", "image refinement"]
+    assert new.problem == PROBLEM
+
+
+def test_design_lens_is_design_with_its_keywords_under_the_poisson_levels():
+    light = jc.DirectionalLight.from_angles(10.0)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        old = jc.design_lens(blob(), **SPEC, light=light, start="poisson", levels=(8, 16),
+                             max_steps=5)  # fmt: skip
+        problem = jc.DesignProblem(PROBLEM.element, PROBLEM.outline, PROBLEM.screen, light)
+        new = jc.design(problem, blob(), start=jc.PoissonLevels((8, 16), 5), finish=None)
+    same(old, new)
+    assert [r["shape"] for r in new.levels] == [(8, 8), (16, 16)]
+
+
+def test_every_level_report_carries_an_optimistix_result():
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        d = jc.design(PROBLEM, letters(), finish=jc.ImageRefinement(2))
+    for report in d.levels:
+        assert isinstance(report["result"], optx.RESULTS), report
+    # the refinement is a step budget: stopping at it is no shortfall
+    assert d.levels[-1]["budget"] and d.converged
+
+
+def test_a_round_design_judged_by_the_reference_matches_its_target():
+    """The design of `design` (its defaults) traced by the reference: the blob is met."""
+    d = jc.design(PROBLEM, blob())
+    error = float(jc.relative_l2(trace_lens(d.scene, 512), blob()))
+    # measured 0.024 (the flat lens: 0.34)
+    assert error < 0.05, error
+
+
+# ----------------------------------------------------------------- the driver
+
+
+def test_the_driver_stops_a_stalled_fixed_point_and_keeps_its_best_iterate():
+    """A fixed point whose misfit stops falling ends after `patience` steps with the best
+    iterate, not the last."""
+    import equinox as eqx
+    import jax.numpy as jnp
+
+    class Bouncing(eqx.Module):
+        def __call__(self, y, args):
+            # the misfit of y is |y - 1|; the step overshoots to 1 + (1 - y) * 1.5
+            return 1.0 + (1.0 - y) * 1.5, jnp.abs(y - 1.0)
+
+    history = []
+    run = driver.iterate(
+        Bouncing(), optx.FixedPointIteration(rtol=0.0, atol=1e-9), jnp.asarray(0.5), None,
+        max_steps=50, history=history, patience=3,
+    )  # fmt: skip
+    assert run.stalled and run.steps == 4, (run.steps, history)
+    assert float(run.y) == 0.5 and run.misfit == 0.5  # the first iterate was the best
+    assert history == [0.5 * m**2 for m in (0.5, 0.75, 1.125, 1.6875)]
+
+
+def test_the_driver_reports_max_steps_when_the_budget_ends_the_run():
+    import jax.numpy as jnp
+
+    def residual(y, args):
+        return y - 3.0
+
+    solver = optx.GaussNewton(rtol=1e-6, atol=1e-6)
+    history = []
+    run = driver.iterate(residual, solver, jnp.zeros(2), None, max_steps=1, history=history)
+    # Optimistix's Gauss-Newton accepts its first step at the second: y is still 0
+    assert run.result == optx.RESULTS.max_steps_reached and run.steps == 1
+    assert history == [9.0]  # 0.5 |0 - 3|^2 per component
+    run = driver.iterate(residual, solver, jnp.zeros(2), None, max_steps=10, history=[])
+    assert run.result == optx.RESULTS.successful and run.steps < 10
+    np.testing.assert_allclose(np.asarray(run.y), 3.0)
+
+
+# ----------------------------------------------------------------- bad problems
+
+
+@pytest.fixture
+def no_work(monkeypatch):
+    def started(*args, **kwargs):
+        raise AssertionError("the design started before the problem was checked")
+
+    monkeypatch.setattr(design_module, "_solve", started)
+
+
+@pytest.mark.parametrize(
+    ("build", "name"),
+    [
+        (lambda: jc.Lens(thickness=0.0), "thickness"),
+        (lambda: jc.Lens(thickness=0.02, ior=0.9), "ior"),
+        (lambda: jc.Lens(thickness=0.02, ior=(1.5, 1.6)), "ior"),
+        (lambda: jc.Rectangle(0.1, -0.1), "height"),
+        (lambda: jc.Rectangle("0.1", 0.1), "width"),
+        # a screen behind the element (above its bottom face)
+        (lambda: jc.Screen(-0.5), "screen_distance"),
+        (lambda: jc.Screen(0.5, extent=(1.0, -1.0, -1.0, 1.0)), "screen_extent"),
+        # light from behind: travelling up, or a point light below the element's top
+        (lambda: jc.DirectionalLight([0.0, 0.0, 1.0]), "direction"),
+        (
+            lambda: jc.DesignProblem(
+                jc.Lens(0.02), jc.Rectangle(0.1, 0.1), jc.Screen(0.5), jc.PointLight([0, 0, 0.3])
+            ),
+            "light",
+        ),
+        (lambda: jc.DesignProblem("lens", jc.Rectangle(0.1, 0.1), jc.Screen(0.5)), "element"),
+        (lambda: jc.DesignProblem(jc.Lens(0.02), (0.1, 0.1), jc.Screen(0.5)), "outline"),
+        (lambda: jc.DesignProblem(jc.Lens(0.02), jc.Rectangle(0.1, 0.1), 0.5), "screen"),
+        (lambda: jc.TransportStart(iterations=0), "iterations"),
+        (lambda: jc.TransportStart(grid=2), "grid"),
+        (lambda: jc.PoissonLevels(levels=()), "levels"),
+        (lambda: jc.PoissonLevels(floor=0.0), "floor"),
+        (lambda: jc.PoissonLevels(solver="newton"), "solver"),
+        (lambda: jc.ImageRefinement(steps=-1), "steps"),
+    ],
+)
+def test_bad_problems_and_strategies_are_refused_by_name_when_built(build, name):
+    with pytest.raises(ValueError, match=f"`{name}`"):
+        build()
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "name"),
+    [
+        (dict(problem=SPEC), "problem"),
+        (dict(start="transport"), "start"),
+        (dict(finish=8), "finish"),
+        (dict(mask=np.ones((4, 4), bool)), "mask"),
+        (dict(max_relief=0.0), "max_relief"),
+        (dict(callback="print"), "callback"),
+    ],
+)
+def test_design_refuses_bad_arguments_before_any_work(no_work, kwargs, name):
+    arguments = {"problem": PROBLEM, "target": blob(), **kwargs}
+    with pytest.raises(ValueError, match=f"`{name}`"):
+        jc.design(**arguments)
+
+
+# ----------------------------------------------------------------- checkpoints
+
+
+def test_an_interrupted_design_resumes_where_it_stopped_and_ends_the_same(tmp_path):
+    levels = jc.PoissonLevels((8, 16), max_steps=4)
+    options = dict(start=levels, finish=None, warn_error=10.0)
+    whole = jc.design(PROBLEM, blob(), **options)
+
+    def stop_in_the_second_level(info):
+        if info["level"] == 1:
+            raise KeyboardInterrupt
+
+    path = tmp_path / "design.ckpt"
+    with pytest.raises(KeyboardInterrupt, match="after 1 of 2 rounds"):
+        jc.design(PROBLEM, blob(), **options, checkpoint=path, callback=stop_in_the_second_level)
+    assert path.is_file()
+    seen = []
+    resumed = jc.design(PROBLEM, blob(), **options, checkpoint=path, resume=True,
+                        callback=seen.append)  # fmt: skip
+    np.testing.assert_array_equal(resumed.heights, whole.heights)
+    assert {info["level"] for info in seen} == {1}  # the first level was not run again
+    assert [r["stage"] for r in resumed.levels] == ["checkpoint", "irradiance"]
+    # a checkpoint of another design is refused, not resumed
+    with pytest.raises(ValueError, match="`checkpoint`.*another design"):
+        jc.design(PROBLEM, 2.0 + blob(), **options, checkpoint=path, resume=True)
+
+
+def test_a_checkpoint_is_never_written_over_a_file_that_is_not_one(no_work, tmp_path):
+    picture = tmp_path / "target.png"
+    picture.write_bytes(b"\x89PNG\r\n\x1a\n not a checkpoint")
+    with pytest.raises(ValueError, match="`checkpoint`.*not a jaxcaustics checkpoint"):
+        jc.design(PROBLEM, blob(), checkpoint=picture)
+    assert picture.read_bytes().startswith(b"\x89PNG")
+    with pytest.raises(ValueError, match="`resume=True` needs a `checkpoint`"):
+        jc.design(PROBLEM, blob(), resume=True)
