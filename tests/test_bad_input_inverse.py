@@ -28,7 +28,7 @@ import jaxcaustics.inverse.design as design_module
 import jaxcaustics.inverse.sequence as sequence_module
 import jaxcaustics.inverse.variants as variants_module
 from jaxcaustics import reference
-from jaxcaustics.cli.design import with_flags
+from jaxcaustics.cli.flags import with_flags
 from jaxcaustics.cli.main import main
 from jaxcaustics.inverse import lens_setup
 

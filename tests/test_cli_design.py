@@ -7,7 +7,7 @@ import pytest
 import trimesh
 
 from jaxcaustics import read_exr
-from jaxcaustics.cli.design import length
+from jaxcaustics.cli.flags import length
 from jaxcaustics.cli.main import main
 from jaxcaustics.io.images import write_png_linear16
 
@@ -56,23 +56,52 @@ def test_design_writes_a_millable_lens_and_resumes_to_the_same_result(tmp_path, 
 
     import jaxcaustics.cli.design as cli_module  # where the command looks it up
 
-    original = cli_module.design_lens
-    calls = {"n": 0}
+    original = cli_module.design_element
+    stopped = []
 
-    def ctrl_c_in_level_two(*args, **kwargs):
-        calls["n"] += 1
-        if calls["n"] == 2:
-            raise KeyboardInterrupt
-        return original(*args, **kwargs)
+    def ctrl_c_in_level_two(*args, callback, **kwargs):
+        def step(info):
+            if info["level"] == 1 and not stopped:  # once: the resumed run goes on
+                stopped.append(info)
+                raise KeyboardInterrupt
+            callback(info)
+
+        return original(*args, callback=step, **kwargs)
 
     resumed = tmp_path / "resumed"
-    monkeypatch.setattr(cli_module, "design_lens", ctrl_c_in_level_two)
+    monkeypatch.setattr(cli_module, "design_element", ctrl_c_in_level_two)
     assert main([*args, "--output", str(resumed)]) == 130  # interrupted, checkpoint kept
     assert (resumed / "design.ckpt").is_file() and not (resumed / "lens.stl").exists()
     assert main([*args, "--output", str(resumed), "--resume"]) == 0
     np.testing.assert_array_equal(
         read_exr(resumed / "lens_height.exr"), read_exr(straight / "lens_height.exr")
     )
+
+
+def test_a_design_folder_describes_its_problem_and_verifies_from_itself(tmp_path):
+    """`design.json` holds every parameter of the problem; `jaxcaustics verify FOLDER`
+    rebuilds the exported lens from the folder alone and traces it with the reference."""
+    import json
+
+    from jaxcaustics.cli.verify import exported_lens
+    from jaxcaustics.inverse.problem import problem_from_dict
+
+    out = tmp_path / "lens"
+    args = ["design", "--size", "16", "--width", "80mm", "--screen-distance", "400mm"]
+    assert main([*args, "--ior", "1.49", "--output", str(out)]) == 0
+    described = json.loads((out / "design.json").read_text())
+    problem = problem_from_dict(described["problem"])
+    assert problem.element.ior == 1.49 and problem.screen.distance == pytest.approx(0.4)
+    assert problem.outline.width == pytest.approx(0.08)
+    assert described["start"]["kind"] == "TransportStart"
+    scene, target = exported_lens(out)
+    assert target.shape == (16, 16) and float(scene.ior) == 1.49
+    assert float(scene.screen_distance) == pytest.approx(0.4)
+    assert main(["verify", str(out), "--photons", "128"]) == 0
+    figures = json.loads((out / "verification.json").read_text())
+    # measured 0.05 (128 photons per axis: 64 per pixel)
+    assert figures["nominal"] < 0.1, figures
+    assert main(["verify", str(tmp_path)]) == 2  # no design.json: one line, exit 2
 
 
 def test_recover_rejects_bad_levels(tmp_path):

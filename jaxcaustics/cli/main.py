@@ -26,16 +26,10 @@ import jaxcaustics as jc
 from jaxcaustics import __version__
 from jaxcaustics.methods.twopass import MAX_AUTO_HALF_WINDOW
 
-from .design import (
-    MAX_PIXELS,
-    add_design,
-    add_recover,
-    int_at_least,
-    number,
-    output_folder,
-    with_flags,
-    zenith,
-)
+from .design import add_design
+from .flags import MAX_PIXELS, int_at_least, number, output_folder, with_flags, zenith
+from .recover import add_recover
+from .verify import add_verify
 
 # Above this missed-flux fraction the image is visibly too dark: warn.
 MISSED_FLUX_WARNING = 0.01
@@ -467,6 +461,7 @@ _COMMANDS: list[Callable[[argparse._SubParsersAction], None]] = [
     _add_render,
     add_design,
     add_recover,
+    add_verify,
 ]
 
 

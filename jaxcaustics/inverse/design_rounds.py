@@ -78,6 +78,14 @@ def solve_in_rounds(
                 "without `resume`"
             )
     reports: list[dict] = []
+    shown = [lambda text: None]  # the progress bar's live text while a round runs
+
+    def step_done(info):
+        rows, cols = info["shape"]
+        shown[0](f"{rows}x{cols} step {info['step']} loss {info['loss']:.4g}")
+        if callback is not None:
+            callback(info)
+
     results = [optx.RESULTS.successful]  # the design's result: its start's last
     ran = [0]  # rounds run in this call (the others came from the checkpoint)
     start, finish = setup.start, setup.finish
@@ -91,7 +99,7 @@ def solve_in_rounds(
     def level(k):
         def run(state):
             previous = None if k == 0 else state["heights"][k - 1]
-            h, report, result = start.solve_level(setup, k, previous, history, callback, throw)
+            h, report, result = start.solve_level(setup, k, previous, history, step_done, throw)
             reports.append(report)
             results.append(result)
             return store(state, k, h)
@@ -99,13 +107,13 @@ def solve_in_rounds(
         return run
 
     def transport(state):
-        h, stage_reports, result = start.solve(setup, history, callback)
+        h, stage_reports, result = start.solve(setup, history, step_done)
         reports.extend(stage_reports)
         results.append(result)
         return store(state, 0, h)
 
     def refine(state):
-        h, report = finish.refine(setup, state["heights"][-2], history, callback)
+        h, report = finish.refine(setup, state["heights"][-2], history, step_done)
         if report is not None:  # None: nothing to refine
             reports.append(report)
         return store(state, len(shapes) - 1, h)
@@ -116,8 +124,23 @@ def solve_in_rounds(
         rounds = [transport]
     if finish is not None:
         rounds.append(refine)
+
+    def live(run):
+        def with_report(state, report):
+            shown[0] = report
+            return run(state)
+
+        return with_report
+
     state, done, interrupted = run_rounds(
-        rounds, state, checkpoint=checkpoint, resume=resume, progress=progress, label="designing"
+        [live(run) for run in rounds],
+        state,
+        checkpoint=checkpoint,
+        resume=resume,
+        describe=lambda s: f"{len(history)} steps",
+        progress=progress,
+        label="designing",
+        live=True,
     )
     if interrupted:
         where = "" if checkpoint is None else f"; resume from {str(checkpoint)!r}"

@@ -146,3 +146,70 @@ class DesignProblem(eqx.Module):
     def top(self) -> float:
         """Height of the element's top rest plane above the screen (metres)."""
         return self.screen.distance + self.element.thickness
+
+
+# ----------------------------------------------------------------- as JSON
+
+PROBLEM_FORMAT = "jaxcaustics-problem-1"
+
+
+def problem_to_dict(problem: DesignProblem) -> dict:
+    """`problem` as plain JSON-ready data (metres), read back by `problem_from_dict`."""
+    light = problem.light
+    if isinstance(light, DirectionalLight):
+        light_data = {"kind": "directional", "direction": np.asarray(light.direction).tolist()}
+    else:
+        light_data = {
+            "kind": "point",
+            "position": np.asarray(light.position).tolist(),
+            "intensity": float(np.asarray(light.intensity)),
+        }
+    screen = problem.screen
+    return {
+        "format": PROBLEM_FORMAT,
+        "units": "metres",
+        "element": {
+            "kind": "lens",
+            "thickness": problem.element.thickness,
+            "ior": problem.element.ior,
+        },  # fmt: skip
+        "outline": {
+            "kind": "rectangle",
+            "width": problem.outline.width,
+            "height": problem.outline.height,
+        },  # fmt: skip
+        "light": light_data,
+        "screen": {
+            "distance": screen.distance,
+            "extent": None if screen.extent is None else list(screen.extent),
+        },
+    }
+
+
+def problem_from_dict(data) -> DesignProblem:
+    """The `DesignProblem` that `problem_to_dict` wrote; a `ValueError` naming the entry
+    that is missing or wrong."""
+    if not isinstance(data, dict) or data.get("format") != PROBLEM_FORMAT:
+        raise ValueError(f"`problem` is not a {PROBLEM_FORMAT!r} description")
+    try:
+        element, outline = data["element"], data["outline"]
+        light, screen = data["light"], data["screen"]
+        if element.get("kind") != "lens":
+            raise ValueError(f"`element` kind {element.get('kind')!r} is not 'lens'")
+        if outline.get("kind") != "rectangle":
+            raise ValueError(f"`outline` kind {outline.get('kind')!r} is not 'rectangle'")
+        if light.get("kind") == "directional":
+            built_light = DirectionalLight(np.asarray(light["direction"], float))
+        elif light.get("kind") == "point":
+            position = np.asarray(light["position"], float)
+            built_light = PointLight(position, light.get("intensity", 1.0))
+        else:
+            raise ValueError(f"`light` kind {light.get('kind')!r} is not directional or point")
+        return DesignProblem(
+            Lens(element["thickness"], element["ior"]),
+            Rectangle(outline["width"], outline["height"]),
+            Screen(screen["distance"], screen.get("extent")),
+            built_light,
+        )
+    except (KeyError, TypeError, AttributeError) as err:
+        raise ValueError(f"`problem` description is incomplete or malformed: {err!r}") from err

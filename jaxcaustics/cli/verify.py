@@ -1,0 +1,108 @@
+"""``jaxcaustics verify FOLDER``: the exported part of a design folder traced by the NumPy
+reference, from the folder alone (its ``design.json``, height map and target).
+
+The lens is rebuilt from what was exported (``lens_height.exr``: millimetres above the
+bottom face, the design's own samples at its odd rows and columns) and the problem the
+folder describes (index, thickness, outline, light, screen); `verify_lens` traces its
+solid at the nominal screen, the screen moved by 5% each way, and under the Sun's disc.
+The figures are printed and written to ``verification.json`` in the folder.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+from pathlib import Path
+
+import numpy as np
+
+from ..inverse.problem import problem_from_dict
+from ..inverse.verify import MAX_PHOTONS_PER_AXIS, verify_lens
+from ..io.images import read_exr
+from ..scene.scene import HeightField, LensScene, PlaneReceiver
+from .flags import int_at_least
+
+
+def add_verify(subparsers) -> None:
+    verify = subparsers.add_parser(
+        "verify",
+        help="trace a design folder's exported lens with the reference",
+        description=__doc__,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    verify.add_argument("folder", type=Path, metavar="FOLDER", help="a `design` output folder")
+    verify.add_argument(
+        "--photons",
+        type=int_at_least(16, MAX_PHOTONS_PER_AXIS),
+        default=None,
+        help="the reference's photons per axis (default: 8 per target pixel side)",
+    )
+    verify.set_defaults(func=run_verify)
+
+
+def _read_json(path: Path) -> dict:
+    try:
+        return json.loads(path.read_text())
+    except (OSError, ValueError) as err:
+        raise ValueError(f"`FOLDER`: cannot read {path.name}: {err}") from err
+
+
+def exported_lens(folder: Path) -> tuple[LensScene, np.ndarray]:
+    """The lens a design folder exported, as a `LensScene`, and its target ``(rows,
+    cols)``; a `ValueError` naming `FOLDER` when the folder does not describe a design."""
+    folder = Path(folder)
+    described = folder / "design.json"
+    if not described.is_file():
+        raise ValueError(f"`FOLDER` {str(folder)!r} has no design.json: not a design folder")
+    spec = _read_json(described)
+    try:
+        problem = problem_from_dict(spec.get("problem"))
+        heights_file = folder / spec["heights"]["file"]
+        boundary = spec["heights"]["boundary"]
+        target = np.asarray(read_exr(folder / spec["target"]["file"]), float)
+        extent = np.asarray(spec["screen"]["extent"], float)
+        z_mm = np.asarray(read_exr(heights_file), float)
+    except (KeyError, TypeError) as err:
+        raise ValueError(f"`FOLDER`: design.json lacks {err}") from err
+    except ValueError as err:
+        raise ValueError(f"`FOLDER` {str(folder)!r}: {err}") from err
+    if target.ndim == 3:  # an EXR read as channels: the target is one
+        target = target[..., 0]
+    if z_mm.ndim != 2 or z_mm.shape[0] % 2 == 0 or z_mm.shape[1] % 2 == 0:
+        raise ValueError(
+            f"`FOLDER`: {heights_file.name} of shape {z_mm.shape} is not the design's "
+            "height map (2 rows + 1 by 2 cols + 1 vertices)"
+        )
+    thickness = problem.element.thickness
+    heights = z_mm[1::2, 1::2] / 1000.0 - thickness  # metres above the rest plane
+    scene = LensScene(
+        HeightField(heights, problem.outline.extent, boundary),
+        problem.light,
+        PlaneReceiver(extent, target.shape),
+        thickness,
+        problem.screen.distance,
+        ior=problem.element.ior,
+    )
+    return scene, target
+
+
+def run_verify(args: argparse.Namespace) -> int:
+    scene, target = exported_lens(args.folder)
+    photons = args.photons or min(8 * max(target.shape), MAX_PHOTONS_PER_AXIS)
+    report = verify_lens(scene, target, photons_per_axis=photons)
+    print(report)
+    figures = {
+        "photons_per_axis": photons,
+        "nominal": report.nominal,
+        "screen_near": report.screen_near,
+        "screen_far": report.screen_far,
+        "sun": report.sun,
+        "screen_shift": report.screen_shift,
+    }
+    path = Path(args.folder) / "verification.json"
+    tmp = path.with_name(path.name + ".tmp")
+    tmp.write_text(json.dumps(figures, indent=2))
+    os.replace(tmp, path)
+    print(f"wrote {path}")
+    return 0
