@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 import jaxcaustics as jc
-from jaxcaustics.inverse import recover
+from jaxcaustics.inverse import compare_solvers, recover
 from jaxcaustics.inverse.recover import SOLVERS, recover_surface
 
 EXT = (0.0, 1.0, 0.0, 1.0)
@@ -204,7 +204,7 @@ def test_missing_target_file_raises():
 @pytest.mark.slow
 def test_solver_comparison_table():
     """Each solver from the same start; prints the table (run with -s to see it)."""
-    rows = recover.compare_solvers(
+    rows = compare_solvers.compare_solvers(
         true_heights(),
         extent=EXT,
         rest_depth=DEPTH,
@@ -214,7 +214,7 @@ def test_solver_comparison_table():
         throw=False,
         **WINDOW,
     )
-    print("\n" + recover.format_comparison(rows))
+    print("\n" + compare_solvers.format_comparison(rows))
     lm = next(r for r in rows if r["solver"] == "levenberg_marquardt")
     assert lm["height_error"] < 5e-3
 

@@ -49,7 +49,6 @@ which says whether the window was large enough.
 
 from __future__ import annotations
 
-import dataclasses
 import math
 import os
 import time
@@ -78,6 +77,7 @@ from ..scene.scene import (
 )
 from .camera import camera_blur, deconvolve
 from .numerics import check_irradiance, resample_heights, weighted_laplacian
+from .recover_result import RecoveryLevel, RecoveryResult
 from .solvers import (
     MAX_CG_STEPS,
     SOLVER_NAMES,
@@ -104,96 +104,6 @@ START_MISFIT = 0.02
 RESULT_WINDOW_MARGIN = 0.5
 RESULT_MISSED_FLUX = 1e-3
 INITIAL_RIPPLE = 0.05  # scaled units: the random ripple of the default initial guess
-
-
-# ------------------------------------------------------------------ results
-
-
-@dataclasses.dataclass(frozen=True)
-class RecoveryLevel:
-    """One level of the coarse-to-fine solve.
-
-    - `level`: index of the level (0 is the coarsest).
-    - `shape`: ``(rows, cols)`` of the height grid solved for.
-    - `heights`: the level's solution, metres (as solved: mean not removed).
-    - `initial_loss`: the objective at the level's initial guess.
-    - `loss`: the objective (``0.5 * sum(residual^2)``, Optimistix's, as `design_lens`
-      reports) at the solution.
-    - `steps`: the solver's number of steps.
-    - `result`: the `optimistix.RESULTS` code (``optimistix.RESULTS.successful`` or why
-      not).
-    - `window`: the two-pass window ``(N, M)`` used.
-    - `time_s`: wall time of the level, compilation included.
-    """
-
-    level: int
-    shape: tuple[int, int]
-    heights: np.ndarray
-    initial_loss: float
-    loss: float
-    steps: int
-    result: Any
-    window: tuple[int, int]
-    time_s: float
-
-
-@dataclasses.dataclass(frozen=True)
-class RecoveryResult:
-    """What `recover_surface` found.
-
-    - `heights`: the recovered height field, metres, ``heights_shape``, mean removed
-      (the mean is unobservable).
-    - `image`: the caustic rendered from the recovered surface (receiver shape),
-      seen through the camera's `blur`.
-    - `target`: the target as compared (normalised if asked).
-    - `loss`: the final objective, the sum of squares of all residuals (without an
-      image-space solve: the image misfit's mean square).
-    - `image_rmse`: root mean square of ``image - target``.
-    - `image_error`: ``||image - target|| / ||target - mean(target)||``, the misfit
-      relative to the target's contrast.
-    - `missed_flux_fraction`: per channel, light of the final surface that fell outside
-      the gather window (should be ~0).
-    - `levels`: a `RecoveryLevel` per coarse-to-fine level.
-    - `solver`: the image-space solver's name (``"none"`` without one).
-    - `time_s`: total wall time, compilation included.
-    - `scene`: the `WaterScene` with the recovered surface (as solved, mean included).
-    - `stages`: a report (dict) per stage of the transport start (``stage``: transport,
-      landing fit, irradiance fit, then a fold fit per blur when it ran; ``steps``,
-      ``rms``, ``seconds``), empty without it.
-    """
-
-    heights: np.ndarray
-    image: np.ndarray
-    target: np.ndarray
-    loss: float
-    image_rmse: float
-    image_error: float
-    missed_flux_fraction: np.ndarray
-    levels: tuple[RecoveryLevel, ...]
-    solver: str
-    time_s: float
-    scene: WaterScene
-    stages: tuple[dict, ...] = ()
-
-    @property
-    def steps(self) -> tuple[int, ...]:
-        """Solver steps per level."""
-        return tuple(level.steps for level in self.levels)
-
-    @property
-    def results(self) -> tuple[Any, ...]:
-        """`optimistix.RESULTS` code per level."""
-        return tuple(level.result for level in self.levels)
-
-    @property
-    def success(self) -> bool:
-        """Whether every level ended with ``optimistix.RESULTS.successful``."""
-        return all(bool(r == optx.RESULTS.successful) for r in self.results)
-
-    @property
-    def messages(self) -> tuple[str, ...]:
-        """Human-readable result per level (empty string: successful)."""
-        return tuple(optx.RESULTS[r] for r in self.results)
 
 
 # ------------------------------------------------------------------ the problem
@@ -681,111 +591,3 @@ def recover_surface(
         scene=scene,
         stages=tuple(stages),
     )
-
-
-# ------------------------------------------------------------------ solver comparison
-
-
-def compare_solvers(
-    true_heights,
-    *,
-    extent,
-    rest_depth,
-    light: DirectionalLight,
-    image_shape: Sequence[int],
-    ior: float = 1.333,
-    solvers: Sequence[str] = SOLVERS,
-    solver_options: dict[str, dict[str, Any]] | None = None,
-    **options: Any,
-) -> list[dict[str, Any]]:
-    """Recover `true_heights` from its own caustic with each solver, twice.
-
-    The target is the two-pass caustic (``image_shape`` pixels, window ``"auto"``, the
-    same `hit_iterations` / `supersample` as the solve) of `true_heights` over
-    `extent`; `options` go to `recover_surface` (``heights_shape`` defaults to the
-    shape of `true_heights`) and ``solver_options[name]`` overrides them per solver.
-    Each solver runs twice with the same arguments: the first time includes
-    compilation, the second reuses it.
-
-    **Returns:** a row per solver: ``solver``, ``height_error`` (relative L2 error of
-    the heights, means removed), ``image_error`` (`RecoveryResult.image_error`),
-    ``loss``, ``steps`` (total over levels), ``success``, ``time_first_s`` (compile
-    included), ``time_s`` (compiled) and ``compile_s`` (their difference). See
-    `format_comparison` for a Markdown table.
-    """
-    true_heights = np.asarray(true_heights, dtype=float)
-    options.setdefault("heights_shape", true_heights.shape)
-    options.setdefault("start", "ripple")  # the solvers compared from flat water
-    scene = WaterScene(
-        HeightField(true_heights, extent, options.get("boundary", "periodic")),
-        light,
-        PlaneReceiver(options.get("receiver_extent", extent), image_shape),
-        rest_depth,
-        ior=ior,
-    )
-    target = np.asarray(
-        two_pass(
-            scene,
-            samples_x="auto",
-            channels_y="auto",
-            hit_iterations=options.get("hit_iterations", 3),
-            supersample=options.get("supersample", 1),
-        ).image
-    )
-    truth = np.asarray(
-        resample_heights(
-            true_heights,
-            extent,
-            tuple(options["heights_shape"]),
-            options.get("boundary", "periodic"),
-        )
-    )
-    truth = truth - truth.mean()
-    rows = []
-    for name in solvers:
-        kwargs = {**options, **(solver_options or {}).get(name, {})}
-        times = []
-        for _ in range(2):
-            t0 = time.perf_counter()
-            result = recover_surface(
-                target,
-                extent=extent,
-                rest_depth=rest_depth,
-                light=light,
-                ior=ior,
-                solver=name,
-                **kwargs,
-            )
-            times.append(time.perf_counter() - t0)
-        rows.append(
-            {
-                "solver": name,
-                "height_error": float(
-                    np.linalg.norm(result.heights - truth) / np.linalg.norm(truth)
-                ),
-                "image_error": result.image_error,
-                "loss": result.loss,
-                "steps": sum(result.steps),
-                "success": result.success,
-                "time_first_s": times[0],
-                "time_s": times[1],
-                "compile_s": times[0] - times[1],
-            }
-        )
-    return rows
-
-
-def format_comparison(rows: Sequence[dict[str, Any]]) -> str:
-    """The rows of `compare_solvers` as a Markdown table."""
-    lines = [
-        "| solver | height error | image error | loss | steps | converged | time (s) |"
-        " time incl. compile (s) |",
-        "|---|---|---|---|---|---|---|---|",
-    ]
-    for r in rows:
-        lines.append(
-            f"| {r['solver']} | {r['height_error']:.2e} | {r['image_error']:.2e} |"
-            f" {r['loss']:.2e} | {r['steps']} | {'yes' if r['success'] else 'no'} |"
-            f" {r['time_s']:.2f} | {r['time_first_s']:.1f} |"
-        )
-    return "\n".join(lines)
