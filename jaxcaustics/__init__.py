@@ -19,11 +19,12 @@ with a height-field top; `MeshScene`: a glass or mirror `Mesh` with optional occ
 `PointLight` and a `PlaneReceiver`), then `render` it.
 
 Inverse problems: `design` (a caustic lens for a target picture: a `DesignProblem` of a
-`Lens`, a `Rectangle` outline, a `Screen` and a light, solved by a `TransportStart` from
-the optimal transport `transport_map`, or `PoissonLevels`, finished by an
-`ImageRefinement`; `design_lens` is its keyword form; `export_lens` writes it for the workshop,
-`manufacturability` reports whether it can be milled, `verify_lens` renders the exported
-solid with the reference) and `recover_surface` (a water surface from its caustic).
+`Lens`, an outline (`Rectangle`, `Ellipse`, `Circle`), a `Screen` and a light, solved
+by a `TransportStart` from the optimal transport `transport_map`, or `PoissonLevels`,
+finished by an `ImageRefinement`; `design_lens` is its keyword form; `export_lens`
+writes it for the workshop, `manufacturability` reports whether it can be milled,
+`verify_lens` renders the exported solid with the reference) and `recover_surface` (a
+water surface from its caustic).
 """
 
 import importlib.metadata
@@ -39,7 +40,7 @@ from .inverse.export import (
 )
 from .inverse.image_refine import ImageRefinement
 from .inverse.poisson_levels import PoissonLevels
-from .inverse.problem import DesignProblem, Lens, Rectangle, Screen
+from .inverse.problem import Circle, DesignProblem, Ellipse, Lens, Rectangle, Screen
 from .inverse.recover import RecoveryResult, recover_surface
 from .inverse.sequence import SequenceResult, recover_sequence
 from .inverse.transport import TransportMap, transport_map
@@ -133,6 +134,7 @@ __all__ = [
     "CausticTriangles",
     "Choice",
     "choose_method",
+    "Circle",
     "CubeMapOptions",
     "design",
     "design_lens",
@@ -141,6 +143,7 @@ __all__ = [
     "device_mesh",
     "DirectionalLight",
     "Effects",
+    "Ellipse",
     "Ellipsoid",
     "EllipsoidScene",
     "ErrorEstimate",

@@ -83,6 +83,7 @@ def exported_lens(folder: Path) -> tuple[LensScene, np.ndarray]:
         thickness,
         problem.screen.distance,
         ior=problem.element.ior,
+        outline=problem.outline.kind,
     )
     return scene, target
 

@@ -58,4 +58,5 @@ class Setup:
             self.thickness,
             self.screen_distance,
             ior=self.ior,
+            outline=self.problem.outline.kind,
         )

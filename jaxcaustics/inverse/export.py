@@ -19,20 +19,26 @@ evaluated by `height_and_gradient`: the exported surface is the one the renderer
 
 from __future__ import annotations
 
-import dataclasses
 import json
-import math
 from collections.abc import Sequence
 from pathlib import Path
 
-import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .._checks import check_shape
 from ..io.images import check_folder, write_exr, write_png_linear16
-from ..scene.scene import HeightField, LensScene
-from ..scene.surface import height_and_gradient
+from ..scene.scene import HeightField
+from .lens_sampling import (
+    _MM,
+    _check_samples,
+    _evaluate_jit,
+    _lens,
+    _outline,
+    _top_mm,
+    lens_height_map,
+)
+from .manufacturability import ManufacturabilityReport, manufacturability
+from .round_solid import ring_points, round_solid_arrays
 
 __all__ = [
     "ManufacturabilityReport",
@@ -42,136 +48,7 @@ __all__ = [
     "manufacturability",
 ]
 
-_MM = 1000.0  # millimetres per metre
 _MESH_FORMATS = ("stl", "obj", "ply")
-_BLOCK_POINTS = 1 << 18  # points per surface evaluation (bounds the memory used)
-# most grid points of a solid, height map or report (4096^2: about 3 GB for the solid's
-# trimesh and 2 GB for the report's derivatives; more takes minutes and runs out of memory)
-MAX_SAMPLES = 1 << 24
-_evaluate_jit = jax.jit(height_and_gradient, static_argnames="curvature")
-
-
-# --------------------------------------------------------------------------- inputs
-
-
-def _check_number(value, name: str, *, low: float, low_inclusive: bool) -> float:
-    if isinstance(value, (bool, np.bool_, str, bytes)):
-        raise ValueError(f"`{name}` must be a number, got {value!r}")
-    try:
-        v = float(value)
-    except (TypeError, ValueError) as err:
-        raise ValueError(f"`{name}` must be a number, got {value!r}") from err
-    if not math.isfinite(v):
-        raise ValueError(f"`{name}` must be finite, got {v}")
-    if v < low or (v == low and not low_inclusive):
-        bound = f">= {low:g}" if low_inclusive else f"> {low:g}"
-        raise ValueError(f"`{name}` must be {bound}, got {v}")
-    return v
-
-
-def _lens(scene_or_surface, thickness) -> tuple[HeightField, float]:
-    """The unrotated height field and the thickness in metres."""
-    if isinstance(scene_or_surface, LensScene):
-        if thickness is not None:
-            raise ValueError(
-                "`thickness` must be None for a LensScene (its own thickness is used), "
-                f"got {thickness!r}"
-            )
-        surface, t = scene_or_surface.surface, float(scene_or_surface.thickness)
-    elif isinstance(scene_or_surface, HeightField):
-        if thickness is None:
-            raise ValueError("`thickness` (metres) is required with a HeightField")
-        surface = scene_or_surface
-        t = _check_number(thickness, "thickness", low=0.0, low_inclusive=False)
-    else:
-        raise ValueError(
-            "`scene_or_surface` must be a LensScene or a HeightField, "
-            f"got {type(scene_or_surface).__name__}"
-        )
-    heights = np.asarray(surface.heights)
-    field = HeightField(
-        jnp.asarray(heights), np.asarray(surface.extent, dtype=float), surface.boundary
-    )
-    return field, t
-
-
-def _check_samples(samples, surface: HeightField, factor: int) -> tuple[int, int]:
-    if samples is None:
-        rows, cols = surface.shape
-        rows, cols = factor * rows + 1, factor * cols + 1
-        if rows * cols > MAX_SAMPLES:
-            raise ValueError(
-                f"`samples`: the default grid {(rows, cols)} ({factor} per height sample) "
-                f"has over {MAX_SAMPLES} points; pass a smaller `samples`"
-            )
-        return rows, cols
-    return check_shape(samples, "samples", 2, max_size=MAX_SAMPLES)
-
-
-# --------------------------------------------------------------------------- sampling
-
-
-def _node_grid(surface: HeightField, samples: tuple[int, int]) -> tuple[np.ndarray, ...]:
-    """Node coordinates (metres, world) spanning the extent edge to edge."""
-    x0, x1, y0, y1 = (float(v) for v in np.asarray(surface.extent))
-    return np.linspace(x0, x1, samples[1]), np.linspace(y0, y1, samples[0])
-
-
-def _evaluate(surface: HeightField, xs, ys, *, curvature: bool) -> list[np.ndarray]:
-    """`height_and_gradient` on the grid ``ys x xs``, in row blocks of a fixed shape."""
-    dtype = surface.heights.dtype
-    block = max(1, min(len(ys), _BLOCK_POINTS // len(xs)))
-    parts: list[list[np.ndarray]] = []
-    for start in range(0, len(ys), block):
-        rows = ys[start : start + block]
-        n = len(rows)
-        if n < block:  # pad to the block's shape: one compilation for all blocks
-            rows = np.concatenate([rows, np.full(block - n, rows[-1])])
-        gx, gy = np.meshgrid(xs, rows)
-        out = _evaluate_jit(
-            surface,
-            jnp.asarray(gx, dtype=dtype),
-            jnp.asarray(gy, dtype=dtype),
-            curvature=curvature,
-        )
-        parts.append([np.asarray(t, dtype=float)[:n] for t in out])
-    return [np.concatenate(terms, axis=0) for terms in zip(*parts, strict=True)]
-
-
-def _top_mm(surface: HeightField, thickness: float, samples) -> tuple[np.ndarray, float, float]:
-    samples = _check_samples(samples, surface, 2)
-    xs, ys = _node_grid(surface, samples)
-    (h,) = _evaluate(surface, xs, ys, curvature=False)[:1]
-    z = (thickness + h) * _MM
-    if not float(z.min()) > 0.0:
-        raise ValueError(
-            f"`scene_or_surface`: the top surface dips to {float(z.min()):.6g} mm at or below "
-            "the bottom face (thickness + H(x, y) <= 0)"
-        )
-    return z, (xs[-1] - xs[0]) * _MM, (ys[-1] - ys[0]) * _MM
-
-
-def lens_height_map(scene_or_surface, thickness=None, *, samples=None) -> np.ndarray:
-    """The lens's top surface, sampled on a grid of vertices over the aperture.
-
-    **Arguments:**
-
-    - `scene_or_surface`: a `LensScene` (its `thickness` is used) or a `HeightField`.
-    - `thickness`: metres from the bottom face to the rest plane of the top surface (> 0);
-      required with a `HeightField`, must be None with a `LensScene`.
-    - `samples`: ``(rows, cols)`` of the grid (two ints, each >= 2, at most
-      `MAX_SAMPLES` points); default ``(2 rows + 1, 2 cols + 1)`` of
-      ``surface.heights``, so that the grid holds every sample's centre and every pixel
-      edge.
-
-    **Returns:** float64 array of shape ``samples``, millimetres: ``z = thickness + H``
-    of the top surface above the flat bottom. Entry ``[i, j]`` lies at
-    ``x = j * width / (cols - 1)``, ``y = i * height / (rows - 1)`` mm from the aperture's
-    corner ``(x_min, y_min)``: the first and last rows and columns lie on the aperture's
-    edges.
-    """
-    surface, t = _lens(scene_or_surface, thickness)
-    return _top_mm(surface, t, samples)[0]
 
 
 # --------------------------------------------------------------------------- the solid
@@ -216,7 +93,9 @@ def lens_solid(scene_or_surface, thickness=None, *, samples=None):
     """The lens as a watertight solid in millimetres, ready for STL / OBJ export.
 
     The top is `lens_height_map` triangulated (two triangles per grid cell), the bottom
-    the plane ``z = 0`` (a fan of triangles), closed by four vertical side walls; faces
+    the plane ``z = 0`` (a fan of triangles), closed by four vertical side walls (a
+    `LensScene` with an ``"ellipse"`` outline: the top on rings over the ellipse, one
+    wall round it, `round_solid`); faces
     wind counter-clockwise seen from outside (outward normals). The origin is the
     aperture's corner ``(x_min, y_min)``: the solid spans ``[0, width] x [0, height]`` in
     ``x, y`` and ``[0, thickness + max H]`` in ``z`` (all mm). A rotated field is exported
@@ -235,242 +114,41 @@ def lens_solid(scene_or_surface, thickness=None, *, samples=None):
     Raises `ValueError` for bad arguments or a top surface that reaches the bottom face.
     """
     surface, t = _lens(scene_or_surface, thickness)
-    return _trimesh(*_top_mm(surface, t, samples))
+    if _outline(scene_or_surface) == "ellipse":
+        return _trimesh(*_round_solid(surface, t, samples))
+    return _trimesh(*_solid_arrays(*_top_mm(surface, t, samples)))
 
 
-def _trimesh(z: np.ndarray, width: float, height: float):
+def _round_solid(surface: HeightField, thickness: float, samples):
+    """An elliptical lens's solid (`round_solid`), its rings as fine as `samples`."""
+    rows, cols = _check_samples(samples, surface, 2)
+    rings = max(1, (max(rows, cols) - 1) // 2)
+    x0, x1, y0, y1 = (float(v) for v in np.asarray(surface.extent))
+    x, y = ring_points(rings, x1 - x0, y1 - y0)  # metres from the corner
+    dtype = surface.heights.dtype
+    h = np.asarray(
+        _evaluate_jit(
+            surface, jnp.asarray(x + x0, dtype), jnp.asarray(y + y0, dtype), curvature=False
+        )[0],
+        float,
+    )
+    z = (thickness + h) * _MM
+    if not float(z.min()) > 0.0:
+        raise ValueError(
+            f"`scene_or_surface`: the top surface dips to {float(z.min()):.6g} mm at or below "
+            "the bottom face (thickness + H(x, y) <= 0)"
+        )
+    return round_solid_arrays(x * _MM, y * _MM, z, rings)
+
+
+def _trimesh(vertices: np.ndarray, faces: np.ndarray):
     import trimesh
 
-    vertices, faces = _solid_arrays(z, width, height)
     mesh = trimesh.Trimesh(vertices, faces, process=False)
     mesh.units = "mm"
     if not (mesh.is_watertight and mesh.is_volume):  # pragma: no cover - a bug if so
         raise RuntimeError("internal error: the lens solid is not a closed volume")
     return mesh
-
-
-# --------------------------------------------------------------------------- analysis
-
-
-def _fmt_at(at: tuple[float, float] | None) -> str:
-    return "" if at is None else f" at (x, y) = ({at[0]:.2f}, {at[1]:.2f}) mm"
-
-
-def _fmt_mm(v: float, none: str = "no concave region") -> str:
-    return f"inf ({none})" if math.isinf(v) else f"{v:.4g} mm"
-
-
-@dataclasses.dataclass(frozen=True)
-class ManufacturabilityReport:
-    """What `manufacturability` found. Lengths in mm, angles in degrees; positions
-    ``(x, y)`` in mm from the aperture's corner ``(x_min, y_min)`` (the frame of
-    `lens_solid`).
-
-    **Fields:**
-
-    - `width_mm`, `height_mm`: the aperture.
-    - `samples`: ``(rows, cols)`` of the grid the surface was evaluated on.
-    - `min_thickness_mm`, `max_thickness_mm`: of the lens (bottom face to top surface),
-      and `min_thickness_at_mm` where the minimum is.
-    - `max_slope_deg`: the steepest angle of the top surface to the horizontal, and
-      `max_slope_at_mm` where it is.
-    - `min_radius_mm`: the smallest principal radius of curvature of the top surface of
-      either sign (``inf`` for a plane).
-    - `min_concave_radius_mm`: the smallest principal radius among the concave
-      curvatures (hollows seen from above, which a ball-end mill of a larger radius
-      cannot reach); ``inf`` if nothing is concave; `min_concave_radius_at_mm` where it
-      is (None if nothing is concave).
-    - `tool_radius_mm`, `min_thickness_limit_mm`, `max_slope_limit_deg`: the limits
-      checked; `margin_mm`: the band along the edges left out of the checks.
-    - `warnings`: one string per limit the design breaks (empty: it can be milled).
-    """
-
-    width_mm: float
-    height_mm: float
-    samples: tuple[int, int]
-    min_thickness_mm: float
-    min_thickness_at_mm: tuple[float, float]
-    max_thickness_mm: float
-    max_slope_deg: float
-    max_slope_at_mm: tuple[float, float]
-    min_radius_mm: float
-    min_concave_radius_mm: float
-    min_concave_radius_at_mm: tuple[float, float] | None
-    tool_radius_mm: float
-    min_thickness_limit_mm: float
-    max_slope_limit_deg: float
-    margin_mm: float
-    warnings: tuple[str, ...]
-
-    @property
-    def ok(self) -> bool:
-        """True when no limit is broken."""
-        return not self.warnings
-
-    def to_dict(self) -> dict:
-        """Plain JSON-able values (infinite radii become None)."""
-        out = dataclasses.asdict(self)
-        for key, value in out.items():
-            if isinstance(value, float) and math.isinf(value):
-                out[key] = None
-            elif isinstance(value, tuple):
-                out[key] = list(value)
-        out["ok"] = self.ok
-        return out
-
-    def __str__(self) -> str:
-        lines = [
-            f"Lens {self.width_mm:.2f} x {self.height_mm:.2f} mm "
-            f"(surface sampled on {self.samples[0]} x {self.samples[1]} points"
-            + (f", {self.margin_mm:g} mm edge margin left out)" if self.margin_mm else ")"),
-            f"  thickness:          {self.min_thickness_mm:.4g} .. {self.max_thickness_mm:.4g}"
-            f" mm (min{_fmt_at(self.min_thickness_at_mm)}; "
-            f"limit >= {self.min_thickness_limit_mm:g} mm)",
-            f"  max slope:          {self.max_slope_deg:.2f} deg{_fmt_at(self.max_slope_at_mm)}"
-            f" (limit {self.max_slope_limit_deg:g} deg)",
-            f"  min concave radius: {_fmt_mm(self.min_concave_radius_mm)}"
-            f"{_fmt_at(self.min_concave_radius_at_mm)}"
-            f" (ball-end tool radius {self.tool_radius_mm:g} mm)",
-            "  min radius (any):   " + _fmt_mm(self.min_radius_mm, "flat"),
-        ]
-        if self.ok:
-            lines.append("  OK: within all limits.")
-        else:
-            lines.append(f"  {len(self.warnings)} problem(s):")
-            lines.extend(f"  - {w}" for w in self.warnings)
-        return "\n".join(lines)
-
-
-def _principal_curvatures(hx, hy, hxx, hxy, hyy) -> tuple[np.ndarray, np.ndarray]:
-    """Eigenvalues ``k_min <= k_max`` of the shape operator of ``z = h(x, y)`` with the
-    upward normal: positive means the surface bends upwards (concave seen from above)."""
-    e, f, g = 1.0 + hx * hx, hx * hy, 1.0 + hy * hy
-    w = np.sqrt(1.0 + hx * hx + hy * hy)
-    big_l, big_m, big_n = hxx / w, hxy / w, hyy / w
-    det = w * w  # E G - F^2
-    gauss = (big_l * big_n - big_m * big_m) / det
-    mean = (e * big_n - 2.0 * f * big_m + g * big_l) / (2.0 * det)
-    root = np.sqrt(np.maximum(mean * mean - gauss, 0.0))
-    return mean - root, mean + root
-
-
-def manufacturability(
-    scene_or_surface,
-    *,
-    thickness=None,
-    tool_radius_mm=1.0,
-    min_thickness_mm=1.0,
-    max_slope_deg=60.0,
-    margin_mm=0.0,
-    samples=None,
-) -> ManufacturabilityReport:
-    """Checks whether a lens can be milled with a ball-end tool from a slab.
-
-    The top surface (the bicubic the renderer uses) is evaluated with its first and
-    second derivatives on a dense grid of vertices over the aperture. The principal
-    curvatures are the eigenvalues of the shape operator of ``z = h(x, y)`` (upward
-    normal); a positive one is concave seen from above, a hollow that a ball of a larger
-    radius cannot reach.
-
-    With ``boundary="clamp"`` the outermost one and a half samples are shaped by the
-    clamped edge (the surface levels off there, and the interpolant bends sharply where
-    the design had a slope): that is part of the surface that is exported, and it is
-    checked unless `margin_mm` leaves it out. ``"extrapolate"`` (`design_lens`'s) keeps
-    the edge slope out to the rim instead.
-
-    **Arguments:**
-
-    - `scene_or_surface`: a `LensScene` or a `HeightField` (then give `thickness`).
-    - `thickness`: metres (> 0) with a `HeightField`; None with a `LensScene`.
-    - `tool_radius_mm`: radius of the ball-end mill (> 0).
-    - `min_thickness_mm`: the thinnest the lens may be anywhere (>= 0).
-    - `max_slope_deg`: the steepest the top surface may be, in (0, 90] degrees.
-    - `margin_mm`: width of a band along each edge of the aperture that is left out of
-      all checks (>= 0; e.g. the part held by the lens holder or trimmed away).
-    - `samples`: ``(rows, cols)`` of the evaluation grid, which spans the aperture less
-      the margin; default ``(4 rows + 1, 4 cols + 1)`` of ``surface.heights``.
-
-    **Returns:** a `ManufacturabilityReport`; its `warnings` name each broken limit, the
-    worst value, where it is and the fraction of the aperture affected.
-    """
-    tool = _check_number(tool_radius_mm, "tool_radius_mm", low=0.0, low_inclusive=False)
-    min_t = _check_number(min_thickness_mm, "min_thickness_mm", low=0.0, low_inclusive=True)
-    max_s = _check_number(max_slope_deg, "max_slope_deg", low=0.0, low_inclusive=False)
-    if max_s > 90.0:
-        raise ValueError(f"`max_slope_deg` must be in (0, 90], got {max_s}")
-    margin = _check_number(margin_mm, "margin_mm", low=0.0, low_inclusive=True)
-    surface, t = _lens(scene_or_surface, thickness)
-    shape = _check_samples(samples, surface, 4)
-    x0, x1, y0, y1 = (float(v) for v in np.asarray(surface.extent))
-    width, height = (x1 - x0) * _MM, (y1 - y0) * _MM
-    if not 2.0 * margin < min(width, height):
-        raise ValueError(
-            f"`margin_mm` ({margin:g}) leaves nothing of the {width:g} x {height:g} mm aperture"
-        )
-    m = margin / _MM
-    xs, ys = np.linspace(x0 + m, x1 - m, shape[1]), np.linspace(y0 + m, y1 - m, shape[0])
-    h, hx, hy, hxx, hxy, hyy = _evaluate(surface, xs, ys, curvature=True)
-    px, py = (xs - x0) * _MM, (ys - y0) * _MM
-
-    def at(flat_index) -> tuple[float, float]:
-        i, j = np.unravel_index(int(flat_index), h.shape)
-        return float(px[j]), float(py[i])
-
-    thick = (t + h) * _MM
-    slope = np.degrees(np.arctan(np.hypot(hx, hy)))
-    k_min, k_max = _principal_curvatures(hx, hy, hxx, hxy, hyy)  # 1/m
-    # rounding noise of a plane (radii beyond 10^9 apertures) is no curvature
-    tiny = 1e-9 * _MM / max(width, height)
-    k_min, k_max = (np.where(np.abs(k) < tiny, 0.0, k) for k in (k_min, k_max))
-    k_abs = np.maximum(np.abs(k_min), np.abs(k_max))
-    biggest = float(k_abs.max())
-    min_radius = _MM / biggest if biggest > 0 else math.inf
-    i_concave = int(np.argmax(k_max))
-    concave = float(k_max.flat[i_concave])
-    if concave > 0:
-        min_concave, concave_at = _MM / concave, at(i_concave)
-    else:
-        min_concave, concave_at = math.inf, None
-
-    warnings = []
-    i_thin, i_steep = int(np.argmin(thick)), int(np.argmax(slope))
-    if float(thick.flat[i_thin]) < min_t:
-        frac = float(np.mean(thick < min_t))
-        warnings.append(
-            f"too thin: {float(thick.flat[i_thin]):.4g} mm{_fmt_at(at(i_thin))} is below the "
-            f"minimum thickness {min_t:g} mm ({100 * frac:.3g}% of the aperture)"
-        )
-    if float(slope.flat[i_steep]) > max_s:
-        frac = float(np.mean(slope > max_s))
-        warnings.append(
-            f"too steep: {float(slope.flat[i_steep]):.2f} deg{_fmt_at(at(i_steep))} exceeds "
-            f"the maximum slope {max_s:g} deg ({100 * frac:.3g}% of the aperture)"
-        )
-    if min_concave < tool:
-        frac = float(np.mean(k_max * tool > _MM))
-        warnings.append(
-            f"concave radius {min_concave:.4g} mm{_fmt_at(concave_at)} is below the tool "
-            f"radius {tool:g} mm: a ball-end mill of that size cannot reach the bottom of "
-            f"this hollow ({100 * frac:.3g}% of the aperture)"
-        )
-    return ManufacturabilityReport(
-        width_mm=width,
-        height_mm=height,
-        samples=shape,
-        min_thickness_mm=float(thick.flat[i_thin]),
-        min_thickness_at_mm=at(i_thin),
-        max_thickness_mm=float(thick.max()),
-        max_slope_deg=float(slope.flat[i_steep]),
-        max_slope_at_mm=at(i_steep),
-        min_radius_mm=min_radius,
-        min_concave_radius_mm=min_concave,
-        min_concave_radius_at_mm=concave_at,
-        tool_radius_mm=tool,
-        min_thickness_limit_mm=min_t,
-        max_slope_limit_deg=max_s,
-        margin_mm=margin,
-        warnings=tuple(warnings),
-    )
 
 
 # --------------------------------------------------------------------------- files
@@ -549,9 +227,9 @@ def export_lens(
         max_slope_deg=max_slope_deg,
         margin_mm=margin_mm,
     )
+    mesh = lens_solid(scene_or_surface, thickness, samples=samples)
     surface, t = _lens(scene_or_surface, thickness)
-    z, width, height = _top_mm(surface, t, samples)
-    mesh = _trimesh(z, width, height)
+    z, width, height = _top_mm(surface, t, samples)  # the height map: all the rectangle
 
     try:
         d.mkdir(parents=True, exist_ok=True)
@@ -579,6 +257,8 @@ def export_lens(
         "layout": "pixel [i, j] at x = j * pitch_mm[0], y = i * pitch_mm[1] mm; "
         "row 0 (top of the file) is y = 0",
         "boundary": surface.boundary,  # of the bicubic sampled (`HeightField`)
+        # the blank's outline: the solid is cut to it ("ellipse": the inscribed one)
+        "outline": _outline(scene_or_surface),
     }
     paths["height_json"].write_text(json.dumps(sidecar, indent=2) + "\n")
     paths["height_exr"] = d / f"{name}_height.exr"

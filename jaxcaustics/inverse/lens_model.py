@@ -21,7 +21,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ..scene.scene import DirectionalLight, LensScene
+from ..scene.scene import DirectionalLight, LensScene, inside_outline
 from ..scene.surface import PAD_LOW, catmull_rom, pad_heights, ray_surface_hit
 from ..scene.surface import bilinear as _bilinear
 from ..trace.optics import refract_components
@@ -254,6 +254,20 @@ def residual_count(problem: LensModel) -> int:
     the loss divided by it is comparable between levels."""
     rows, cols = problem.grid
     return (rows - 1) * (cols - 1) + 2 * (rows + cols) + int(problem.scene.surface.heights.size)
+
+
+def aperture_coverage(outline: str, aperture, shape, sub: int = 8) -> np.ndarray:
+    """The fraction of each cell of a ``shape`` grid over `aperture` that lies inside
+    the blank's `outline` (``sub`` x ``sub`` points a cell), ``(rows, cols)``."""
+    rows, cols = shape
+    if outline == "rectangle":
+        return np.ones(shape)
+    x0, x1, y0, y1 = (float(v) for v in aperture)
+    xs = x0 + (np.arange(cols * sub) + 0.5) * (x1 - x0) / (cols * sub)
+    ys = y0 + (np.arange(rows * sub) + 0.5) * (y1 - y0) / (rows * sub)
+    u, v = np.meshgrid(xs, ys)
+    inside = inside_outline(outline, (x0, x1, y0, y1), u, v).astype(float)
+    return inside.reshape(rows, sub, cols, sub).mean(axis=(1, 3))
 
 
 def level_shape(n: int, width: float, height: float) -> tuple[int, int]:

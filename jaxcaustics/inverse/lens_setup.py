@@ -17,6 +17,7 @@ from ..methods.triangles.method import band_bytes
 from ..scene.scene import DirectionalLight, HeightField, LensScene, PlaneReceiver, PointLight
 from .design_setup import Setup
 from .image_refine import _REFINE_MEMORY, ImageRefinement
+from .lens_model import aperture_coverage
 from .numerics import area_average, check_irradiance, neumann_poisson
 from .poisson_levels import PoissonLevels
 from .problem import DesignProblem, _length
@@ -190,6 +191,12 @@ def prepare(
     if max_relief is not None:
         max_relief = _length(max_relief, "max_relief")
     warn_error = check_number(warn_error, "warn_error", low=0.0, low_open=True)
+    if isinstance(start, PoissonLevels) and problem.outline.kind != "rectangle":
+        raise ValueError(
+            "`start`: the Poisson levels need light over the whole rectangle (their "
+            "residual takes the log of each cell's flux); design a "
+            f"{type(problem.outline).__name__} outline with the TransportStart"
+        )
     if isinstance(start, TransportStart):
         shapes = [start.shape(t.shape, width, height)]
     else:
@@ -212,8 +219,10 @@ def prepare(
         thickness,
         screen_distance,
         ior=ior,
+        outline=problem.outline.kind,
     )
     footprint, flat_flux = _flat_lens(light, aperture, thickness, screen_distance, ior)
+    flat_flux *= float(np.mean(aperture_coverage(problem.outline.kind, aperture, (64, 64))))
     given = problem.screen.extent
     screen = footprint if given is None else np.asarray(given, float)
     receiver = PlaneReceiver(screen, t.shape)

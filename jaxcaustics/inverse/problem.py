@@ -13,6 +13,7 @@ towards the element and through it down to the screen.
 from __future__ import annotations
 
 import math
+from typing import ClassVar
 
 import equinox as eqx
 import numpy as np
@@ -61,6 +62,7 @@ class Rectangle(eqx.Module):
 
     width: float = eqx.field(static=True)
     height: float = eqx.field(static=True)
+    kind: ClassVar[str] = "rectangle"  # `LensScene.outline`
 
     def __init__(self, width, height):
         self.width, self.height = _length(width, "width"), _length(height, "height")
@@ -69,6 +71,29 @@ class Rectangle(eqx.Module):
     def extent(self) -> np.ndarray:
         """``(x_min, x_max, y_min, y_max)`` of the blank."""
         return np.array([-self.width / 2, self.width / 2, -self.height / 2, self.height / 2])
+
+
+class Ellipse(eqx.Module):
+    """An elliptical blank, `width` along x by `height` along y (metres), centred: light
+    outside it is stopped (a round mount), and the exported solid is elliptical."""
+
+    width: float = eqx.field(static=True)
+    height: float = eqx.field(static=True)
+    kind: ClassVar[str] = "ellipse"
+
+    def __init__(self, width, height):
+        self.width, self.height = _length(width, "width"), _length(height, "height")
+
+    extent = Rectangle.extent
+
+
+def Circle(diameter) -> Ellipse:  # noqa: N802 (reads as the class it builds)
+    """A round blank of `diameter` (metres), centred: an `Ellipse` of equal axes."""
+    d = _length(diameter, "diameter")
+    return Ellipse(d, d)
+
+
+Outline = Rectangle | Ellipse
 
 
 class Screen(eqx.Module):
@@ -105,7 +130,8 @@ class DesignProblem(eqx.Module):
     **Arguments:**
 
     - `element`: a `Lens` (index, blank thickness).
-    - `outline`: the blank's outline, a `Rectangle`.
+    - `outline`: the blank's outline: a `Rectangle`, an `Ellipse` or a `Circle` (light
+      outside it is stopped by the mount).
     - `screen`: a `Screen` (its distance below the element, its extent).
     - `light`: a `DirectionalLight` (any angle, travelling down) or a `PointLight` above
       the element; default: collimated, straight down.
@@ -115,15 +141,18 @@ class DesignProblem(eqx.Module):
     """
 
     element: Lens
-    outline: Rectangle
+    outline: Outline
     screen: Screen
     light: DirectionalLight | PointLight
 
     def __init__(self, element, outline, screen, light=None):
         if not isinstance(element, Lens):
             raise ValueError(f"`element` must be a Lens, got {type(element).__name__}")
-        if not isinstance(outline, Rectangle):
-            raise ValueError(f"`outline` must be a Rectangle, got {type(outline).__name__}")
+        if not isinstance(outline, (Rectangle, Ellipse)):
+            raise ValueError(
+                f"`outline` must be a Rectangle, an Ellipse or a Circle, got "
+                f"{type(outline).__name__}"
+            )
         if not isinstance(screen, Screen):
             raise ValueError(f"`screen` must be a Screen, got {type(screen).__name__}")
         if light is None:
@@ -196,8 +225,9 @@ def problem_from_dict(data) -> DesignProblem:
         light, screen = data["light"], data["screen"]
         if element.get("kind") != "lens":
             raise ValueError(f"`element` kind {element.get('kind')!r} is not 'lens'")
-        if outline.get("kind") != "rectangle":
-            raise ValueError(f"`outline` kind {outline.get('kind')!r} is not 'rectangle'")
+        shapes = {"rectangle": Rectangle, "ellipse": Ellipse}
+        if outline.get("kind") not in shapes:
+            raise ValueError(f"`outline` kind {outline.get('kind')!r} is not one of {list(shapes)}")
         if light.get("kind") == "directional":
             built_light = DirectionalLight(np.asarray(light["direction"], float))
         elif light.get("kind") == "point":
@@ -207,7 +237,7 @@ def problem_from_dict(data) -> DesignProblem:
             raise ValueError(f"`light` kind {light.get('kind')!r} is not directional or point")
         return DesignProblem(
             Lens(element["thickness"], element["ior"]),
-            Rectangle(outline["width"], outline["height"]),
+            shapes[outline["kind"]](outline["width"], outline["height"]),
             Screen(screen["distance"], screen.get("extent")),
             built_light,
         )

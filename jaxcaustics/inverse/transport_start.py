@@ -53,6 +53,7 @@ from .driver import iterate
 from .lens_model import (
     LENS_BOUNDARY,
     LensModel,
+    aperture_coverage,
     fit_symbol,
     gradient_at_vertices,
     level_model,
@@ -186,6 +187,7 @@ def _transport_goal(
 
     top = setup.screen_distance + setup.thickness
     source = _source_density(setup.light, setup.aperture, shape, top)
+    source = source * aperture_coverage(setup.problem.outline.kind, setup.aperture, shape)
     if keep is not None:
         source = source * keep
     target = area_average(setup.goal, shape)

@@ -178,6 +178,7 @@ def verify_lens(
             screen_distance,
             ior=scene.ior,
             fresnel=scene.fresnel,
+            outline=scene.outline,
         )
         return relative_l2(
             reference.trace_mesh(solid_scene(lens, samples=samples), photons_per_axis), target, mask

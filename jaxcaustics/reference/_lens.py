@@ -3,8 +3,9 @@
 The lens: top surface ``z = screen_distance + thickness + H(x, y)`` (the bicubic of `_surface.py`,
 rotation included), flat bottom face ``z = screen_distance`` (an infinite plane), screen ``z = 0``.
 A photon belongs to the lens iff its line crosses the top rest plane inside the
-(rotated) extent, half-open. It hits the top surface at the first root along its whole
-line (`intersect_surface`; `_intersect_rays` for a point light's per-photon
+(rotated) extent, half-open, and inside the blank's outline (``scene.outline``: the
+whole extent, or the ellipse inscribed in it). It hits the top surface at the first
+root along its whole line (`intersect_surface`; `_intersect_rays` for a point light's per-photon
 directions), refracts in (``eta = 1 / n``), goes straight to the bottom face, refracts
 out (``eta = n``, total internal reflection loses it) and lands. Each photon carries its
 rest-plane cell's area times 1 (directional light: irradiance relative to the light's
@@ -169,6 +170,7 @@ class _Lens:
     iors: tuple[float, ...]
     multichannel: bool
     fresnel: bool
+    outline: str = "rectangle"  # or "ellipse": the one inscribed in the extent
 
     @property
     def top(self) -> float:
@@ -203,6 +205,7 @@ def _read_lens(scene) -> _Lens:
         _positive(screen_distance, "screen_distance"),
         *_read_iors(ior),
         bool(fresnel),
+        _read_outline(getattr(scene, "outline", "rectangle")),
     )
     if lens.thickness + float(surf.heights.min()) <= 0.0:
         raise ValueError(
@@ -213,6 +216,12 @@ def _read_lens(scene) -> _Lens:
         if not lens.light.position[2] > lens.top + float(surf.heights.max()):
             raise ValueError("the point light must lie above the top of the lens")
     return lens
+
+
+def _read_outline(outline) -> str:
+    if outline not in ("rectangle", "ellipse"):
+        raise ValueError(f"`scene.outline` must be 'rectangle' or 'ellipse', got {outline!r}")
+    return outline
 
 
 def _field_to_world(surf: _Surface, u: np.ndarray, v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -226,14 +235,22 @@ def _field_to_world(surf: _Surface, u: np.ndarray, v: np.ndarray) -> tuple[np.nd
     return cx + c * (u - cx) - s * (v - cy), cy + s * (u - cx) + c * (v - cy)
 
 
-def _in_aperture(surf: _Surface, x: np.ndarray, y: np.ndarray) -> np.ndarray:
-    """Whether world points of the rest plane lie in the (rotated) extent, half-open."""
+def _in_aperture(
+    surf: _Surface, x: np.ndarray, y: np.ndarray, outline: str = "rectangle"
+) -> np.ndarray:
+    """Whether world points of the rest plane lie in the (rotated) extent, half-open, and
+    for an ``"ellipse"`` outline inside the ellipse inscribed in it (rim included)."""
     e = surf.extent
     if surf.rotation != 0.0:
         cx, cy = 0.5 * (e[0] + e[1]), 0.5 * (e[2] + e[3])
         x, y = surf.to_field(x - cx, y - cy)
         x, y = x + cx, y + cy
-    return (x >= e[0]) & (x < e[1]) & (y >= e[2]) & (y < e[3])
+    inside = (x >= e[0]) & (x < e[1]) & (y >= e[2]) & (y < e[3])
+    if outline == "ellipse":
+        ex = (x - 0.5 * (e[0] + e[1])) / (0.5 * (e[1] - e[0]))
+        ey = (y - 0.5 * (e[2] + e[3])) / (0.5 * (e[3] - e[2]))
+        inside &= ex * ex + ey * ey <= 1.0
+    return inside
 
 
 def _intersect_rays(
@@ -340,7 +357,9 @@ def _trace_lens(
     surf, light, top, screen_distance = lens.surface, lens.light, lens.top, lens.screen_distance
     up = np.array([[0.0], [0.0], [1.0]])
     for lo in range(0, n, _CHUNK):
-        sel = lo + np.flatnonzero(_in_aperture(surf, xs[lo : lo + _CHUNK], ys[lo : lo + _CHUNK]))
+        sel = lo + np.flatnonzero(
+            _in_aperture(surf, xs[lo : lo + _CHUNK], ys[lo : lo + _CHUNK], lens.outline)
+        )
         if not sel.size:
             continue
         cx, cy = xs[sel], ys[sel]

@@ -23,7 +23,7 @@ import jax.numpy as jnp
 from jaxtyping import Array, Bool, Float
 
 from ..scene.mesh import MeshScene
-from ..scene.scene import DirectionalLight, LensScene
+from ..scene.scene import DirectionalLight, LensScene, inside_outline
 from ..scene.surface import ray_surface_hit
 from .intersect import face_normals, hit_on_triangle, nearest_hits, search_tree, vertex_normals
 from .optics import fresnel_transmittance, orthonormal_basis, reflect, refract_components
@@ -144,7 +144,8 @@ def lens_photons(
     the whole grid; rows outside the grid are invalid; `start` may be traced).
 
     The grid's vertices span the aperture (``surface.extent``, rotated with the surface)
-    on the top surface's rest plane, edges included; each photon's line crosses that
+    on the top surface's rest plane, edges included (photons outside the scene's
+    `outline` carry no flux); each photon's line crosses that
     plane there and meets the top surface at the root found by `hit_iterations` Newton
     steps. It refracts into the glass, refracts out of the flat bottom (total internal
     reflection there makes it invalid) and lands on the screen.
@@ -168,6 +169,8 @@ def lens_photons(
         r2 = sum(c * c for c in offset)
         d = _normalise(offset)
         density = scene.light.intensity * jnp.abs(d[2]) / r2
+    if scene.outline != "rectangle":  # the mount stops the light outside the outline
+        density = jnp.where(inside_outline(scene.outline, (x0, x1, y0, y1), u, v), density, 0.0)
     hit_x, hit_y, hit_z, hx, hy = ray_surface_hit(surface, top, px, py, d, hit_iterations)
     normal = _normalise((-hx, -hy, jnp.ones_like(hx)))
     up = (jnp.zeros_like(hx), jnp.zeros_like(hx), jnp.ones_like(hx))
