@@ -203,7 +203,7 @@ def problem_to_dict(problem: DesignProblem) -> dict:
             "ior": problem.element.ior,
         },  # fmt: skip
         "outline": {
-            "kind": "rectangle",
+            "kind": problem.outline.kind,
             "width": problem.outline.width,
             "height": problem.outline.height,
         },  # fmt: skip
