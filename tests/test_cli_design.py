@@ -83,24 +83,28 @@ def test_a_design_folder_describes_its_problem_and_verifies_from_itself(tmp_path
     rebuilds the exported lens from the folder alone and traces it with the reference."""
     import json
 
+    import jaxcaustics as jc
     from jaxcaustics.cli.verify import exported_lens
     from jaxcaustics.inverse.problem import problem_from_dict
 
     out = tmp_path / "lens"
     args = ["design", "--size", "16", "--width", "80mm", "--screen-distance", "400mm"]
+    args += ["--outline", "circle", "--zenith", "10"]
     assert main([*args, "--ior", "1.49", "--output", str(out)]) == 0
     described = json.loads((out / "design.json").read_text())
     problem = problem_from_dict(described["problem"])
     assert problem.element.ior == 1.49 and problem.screen.distance == pytest.approx(0.4)
-    assert problem.outline.width == pytest.approx(0.08)
+    assert problem.outline == jc.Circle(0.08)
+    np.testing.assert_allclose(problem.light.unit_direction[2], -np.cos(np.radians(10)), 1e-6)
     assert described["start"]["kind"] == "TransportStart"
     scene, target = exported_lens(out)
-    assert target.shape == (16, 16) and float(scene.ior) == 1.49
+    assert target.shape == (16, 16) and float(scene.ior) == 1.49 and scene.outline == "ellipse"
     assert float(scene.screen_distance) == pytest.approx(0.4)
     assert main(["verify", str(out), "--photons", "128"]) == 0
     figures = json.loads((out / "verification.json").read_text())
-    # measured 0.05 (128 photons per axis: 64 per pixel)
-    assert figures["nominal"] < 0.1, figures
+    # measured 0.141: a 16-pixel target on a round blank under 10-degree light (the square
+    # lens there: 0.123; both 0.05-0.09 under vertical light); 128 photons per axis
+    assert figures["nominal"] < 0.2, figures
     assert main(["verify", str(tmp_path)]) == 2  # no design.json: one line, exit 2
 
 

@@ -26,10 +26,11 @@ import numpy as np
 from ..inverse.design import design as design_element
 from ..inverse.design import lens_problem
 from ..inverse.export import export_lens
-from ..inverse.problem import problem_to_dict
+from ..inverse.problem import DesignProblem, Ellipse, problem_to_dict
 from ..inverse.solvers import SOLVER_NAMES
 from ..inverse.verify import verify_lens
 from ..io.images import read_image, write_exr, write_png
+from ..scene.scene import DirectionalLight
 from .flags import (
     MAX_PIXELS,
     MAX_SIDE,
@@ -39,6 +40,7 @@ from .flags import (
     output_folder,
     resume_checkpoint,
     with_flags,
+    zenith,
 )
 
 _NOT_PICTURES = {"download_all", "data_dir", "file_hash", "lbp_frontal_face_cascade_filename"}
@@ -112,6 +114,27 @@ def add_design(subparsers) -> None:
         "--ior", type=number(1.0, strict=True), default=1.5, help="index of refraction (1.5)"
     )
     design.add_argument(
+        "--outline",
+        default="rectangle",
+        choices=("rectangle", "circle", "ellipse"),
+        help="the blank's outline: rectangle (default), circle (--width across; a round "
+        "lens in a round mount) or ellipse (--width by --height)",
+    )
+    design.add_argument(
+        "--zenith",
+        type=zenith,
+        default=0.0,
+        metavar="DEG",
+        help="angle of the collimated light from vertical, degrees, in [0, 90) (default 0)",
+    )
+    design.add_argument(
+        "--azimuth",
+        type=number(),
+        default=0.0,
+        metavar="DEG",
+        help="direction the light travels towards, degrees from +x towards +y (default 0)",
+    )
+    design.add_argument(
         "--size",
         type=int_at_least(2, MAX_SIDE),
         default=128,
@@ -166,6 +189,7 @@ _DESIGN_FLAGS = {
     "thickness": "--thickness",
     "screen_distance": "--screen-distance",
     "ior": "--ior",
+    "start": "--start",
     "levels": "--levels",
     "heights_shape": "--levels",
     "max_steps": "--steps",
@@ -213,6 +237,8 @@ def run_design(args: argparse.Namespace) -> int:
     resume_checkpoint(checkpoint, args.resume)
     target = _load_target(args.target, args.size)
     height = args.height or args.width * target.shape[0] / target.shape[1]
+    if args.outline == "circle":
+        height = args.width
     problem, start, finish = lens_problem(
         width=args.width,
         height=height,
@@ -223,7 +249,11 @@ def run_design(args: argparse.Namespace) -> int:
         levels=None if args.levels is None else _levels(args.levels),
         max_steps=args.steps,
         solver=args.solver,
+        light=DirectionalLight.from_angles(args.zenith, args.azimuth),
     )
+    if args.outline != "rectangle":
+        outline = Ellipse(problem.outline.width, problem.outline.height)
+        problem = DesignProblem(problem.element, outline, problem.screen, problem.light)
     losses: list[float] = []
 
     def step_done(info):
