@@ -19,7 +19,7 @@ with a height-field top; `MeshScene`: a glass or mirror `Mesh` with optional occ
 `PointLight` and a `PlaneReceiver`), then `render` it.
 
 Inverse problems: `design` (a caustic lens for a target picture: a `DesignProblem` of a
-`Lens`, an outline (`Rectangle`, `Ellipse`, `Circle`), a `Screen` and a light, solved
+`Lens`, an outline (`Rectangle`, `Ellipse`, `Circle`, `Polygon`), a `Screen` and a light, solved
 by a `TransportStart` from the optimal transport `transport_map`, or `PoissonLevels`,
 finished by an `ImageRefinement`; `design_lens` is its keyword form; `export_lens`
 writes it for the workshop, `manufacturability` reports whether it can be milled,
@@ -40,7 +40,7 @@ from .inverse.export import (
 )
 from .inverse.image_refine import ImageRefinement
 from .inverse.poisson_levels import PoissonLevels
-from .inverse.problem import Circle, DesignProblem, Ellipse, Lens, Rectangle, Screen
+from .inverse.problem import Circle, DesignProblem, Ellipse, Lens, Polygon, Rectangle, Screen
 from .inverse.recover import RecoveryResult, recover_surface
 from .inverse.sequence import SequenceResult, recover_sequence
 from .inverse.transport import TransportMap, transport_map
@@ -187,6 +187,7 @@ __all__ = [
     "PlaneReceiver",
     "PointLight",
     "PoissonLevels",
+    "Polygon",
     "precompute_spot_lights",
     "project_caustic_map",
     "ray_geo",

@@ -106,3 +106,55 @@ def test_an_outline_survives_the_design_folder_description():
     problem = jc.DesignProblem(jc.Lens(0.01, 1.49), jc.Ellipse(0.1, 0.06), jc.Screen(0.4))
     again = problem_from_dict(problem_to_dict(problem))
     assert again.outline == jc.Ellipse(0.1, 0.06) and again.element.ior == 1.49
+
+
+def star(outer=0.05, inner=0.025, points=5):
+    k = np.arange(2 * points)
+    r = np.where(k % 2 == 0, outer, inner)
+    theta = np.pi / 2 + k * np.pi / points
+    return np.c_[r * np.cos(theta), r * np.sin(theta)]
+
+
+def polygon_area(v):
+    x, y = v[:, 0], v[:, 1]
+    return 0.5 * abs(np.sum(x * np.roll(y, -1) - y * np.roll(x, -1)))
+
+
+def test_a_star_blank_passes_the_light_of_the_star_alone():
+    outline = jc.Polygon(star())
+    scene = flat_lens(outline.lens_outline)
+    ref = trace_lens(scene, (256, 320))
+    image = np.asarray(jc.caustic_triangles(scene, photons=(257, 321)).image)
+    fraction = polygon_area(np.asarray(outline.lens_outline)) / 4  # of the aperture
+    assert ref.mean() == pytest.approx(fraction, rel=3e-3)
+    assert image.mean() == pytest.approx(fraction, rel=3e-3)
+    assert jc.relative_l2(image, ref) < 0.02
+
+
+def test_a_star_lens_is_designed_and_exported_as_a_star(tmp_path):
+    outline = jc.Polygon(star())
+    problem = jc.DesignProblem(jc.Lens(0.01), outline, jc.Screen(0.5))
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        d = jc.design(problem, disc_target())
+    error = jc.relative_l2(trace_lens(d.scene, 768), disc_target())
+    assert error < 0.06, error  # measured 0.041
+    solid = trimesh.load(jc.export_lens(d.scene, tmp_path, formats=("stl",))["stl"])
+    assert solid.is_watertight and solid.is_volume
+    # every ring carries the star's corners: its tips are exact (an STL holds float32)
+    np.testing.assert_allclose(solid.extents[:2], [1000 * outline.width, 1000 * outline.height],
+                               rtol=1e-6)  # fmt: skip
+    assert d.problem.outline == outline
+
+
+@pytest.mark.parametrize(
+    "vertices",
+    [
+        [(0.0, 0.0), (1.0, 0.0), (1.0, 1.0)],  # the centre of its box on an edge
+        [(-1.0, -1.0), (1.0, 1.0), (1.0, -1.0), (-1.0, 1.0)],  # a bow tie
+        [(0.0, 0.0), (1.0, 0.0)],
+    ],
+)
+def test_a_polygon_the_rings_cannot_follow_is_refused_by_name(vertices):
+    with pytest.raises(ValueError, match="`vertices`"):
+        jc.Polygon(vertices)

@@ -83,7 +83,7 @@ def exported_lens(folder: Path) -> tuple[LensScene, np.ndarray]:
         thickness,
         problem.screen.distance,
         ior=problem.element.ior,
-        outline=problem.outline.kind,
+        outline=problem.outline.lens_outline,
     )
     return scene, target
 

@@ -58,5 +58,5 @@ class Setup:
             self.thickness,
             self.screen_distance,
             ior=self.ior,
-            outline=self.problem.outline.kind,
+            outline=self.problem.outline.lens_outline,
         )

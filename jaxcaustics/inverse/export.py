@@ -27,6 +27,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from ..io.images import check_folder, write_exr, write_png_linear16
+from ..scene.outline import outline_radius
 from ..scene.scene import HeightField
 from .lens_sampling import (
     _MM,
@@ -38,7 +39,7 @@ from .lens_sampling import (
     lens_height_map,
 )
 from .manufacturability import ManufacturabilityReport, manufacturability
-from .round_solid import ring_points, round_solid_arrays
+from .round_solid import ring_angles, ring_points, round_solid_arrays
 
 __all__ = [
     "ManufacturabilityReport",
@@ -94,8 +95,8 @@ def lens_solid(scene_or_surface, thickness=None, *, samples=None):
 
     The top is `lens_height_map` triangulated (two triangles per grid cell), the bottom
     the plane ``z = 0`` (a fan of triangles), closed by four vertical side walls (a
-    `LensScene` with an ``"ellipse"`` outline: the top on rings over the ellipse, one
-    wall round it, `round_solid`); faces
+    `LensScene` with an ellipse or polygon outline: the top on rings over the outline,
+    one wall round it, `round_solid`); faces
     wind counter-clockwise seen from outside (outward normals). The origin is the
     aperture's corner ``(x_min, y_min)``: the solid spans ``[0, width] x [0, height]`` in
     ``x, y`` and ``[0, thickness + max H]`` in ``z`` (all mm). A rotated field is exported
@@ -114,17 +115,24 @@ def lens_solid(scene_or_surface, thickness=None, *, samples=None):
     Raises `ValueError` for bad arguments or a top surface that reaches the bottom face.
     """
     surface, t = _lens(scene_or_surface, thickness)
-    if _outline(scene_or_surface) == "ellipse":
-        return _trimesh(*_round_solid(surface, t, samples))
+    outline = _outline(scene_or_surface)
+    if outline != "rectangle":
+        return _trimesh(*_round_solid(surface, t, samples, outline))
     return _trimesh(*_solid_arrays(*_top_mm(surface, t, samples)))
 
 
-def _round_solid(surface: HeightField, thickness: float, samples):
-    """An elliptical lens's solid (`round_solid`), its rings as fine as `samples`."""
+def _round_solid(surface: HeightField, thickness: float, samples, outline):
+    """An elliptical or polygonal lens's solid (`round_solid`), its rings as fine as
+    `samples`."""
     rows, cols = _check_samples(samples, surface, 2)
     rings = max(1, (max(rows, cols) - 1) // 2)
     x0, x1, y0, y1 = (float(v) for v in np.asarray(surface.extent))
-    x, y = ring_points(rings, x1 - x0, y1 - y0)  # metres from the corner
+    radius, corners = None, ()
+    if outline != "ellipse":  # a polygon: its radius, its corners on every ring
+        radius = lambda theta: outline_radius(outline, theta)  # noqa: E731
+        corners = [np.arctan2(v, u) for u, v in outline]
+    angles = ring_angles(rings, corners)
+    x, y = ring_points(angles, x1 - x0, y1 - y0, radius)  # metres from the corner
     dtype = surface.heights.dtype
     h = np.asarray(
         _evaluate_jit(
@@ -138,7 +146,7 @@ def _round_solid(surface: HeightField, thickness: float, samples):
             f"`scene_or_surface`: the top surface dips to {float(z.min()):.6g} mm at or below "
             "the bottom face (thickness + H(x, y) <= 0)"
         )
-    return round_solid_arrays(x * _MM, y * _MM, z, rings)
+    return round_solid_arrays(x * _MM, y * _MM, z, angles)
 
 
 def _trimesh(vertices: np.ndarray, faces: np.ndarray):
@@ -257,7 +265,7 @@ def export_lens(
         "layout": "pixel [i, j] at x = j * pitch_mm[0], y = i * pitch_mm[1] mm; "
         "row 0 (top of the file) is y = 0",
         "boundary": surface.boundary,  # of the bicubic sampled (`HeightField`)
-        # the blank's outline: the solid is cut to it ("ellipse": the inscribed one)
+        # the blank's outline (`LensScene.outline`): the solid is cut to it
         "outline": _outline(scene_or_surface),
     }
     paths["height_json"].write_text(json.dumps(sidecar, indent=2) + "\n")

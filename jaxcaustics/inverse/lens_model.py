@@ -21,7 +21,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ..scene.scene import DirectionalLight, LensScene, inside_outline
+from ..scene.outline import inside_outline
+from ..scene.scene import DirectionalLight, LensScene
 from ..scene.surface import PAD_LOW, catmull_rom, pad_heights, ray_surface_hit
 from ..scene.surface import bilinear as _bilinear
 from ..trace.optics import refract_components

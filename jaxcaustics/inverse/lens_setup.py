@@ -191,7 +191,7 @@ def prepare(
     if max_relief is not None:
         max_relief = _length(max_relief, "max_relief")
     warn_error = check_number(warn_error, "warn_error", low=0.0, low_open=True)
-    if isinstance(start, PoissonLevels) and problem.outline.kind != "rectangle":
+    if isinstance(start, PoissonLevels) and problem.outline.lens_outline != "rectangle":
         raise ValueError(
             "`start`: the Poisson levels need light over the whole rectangle (their "
             "residual takes the log of each cell's flux); design a "
@@ -219,10 +219,10 @@ def prepare(
         thickness,
         screen_distance,
         ior=ior,
-        outline=problem.outline.kind,
+        outline=problem.outline.lens_outline,
     )
     footprint, flat_flux = _flat_lens(light, aperture, thickness, screen_distance, ior)
-    flat_flux *= float(np.mean(aperture_coverage(problem.outline.kind, aperture, (64, 64))))
+    flat_flux *= float(np.mean(aperture_coverage(problem.outline.lens_outline, aperture, (64, 64))))
     given = problem.screen.extent
     screen = footprint if given is None else np.asarray(given, float)
     receiver = PlaneReceiver(screen, t.shape)

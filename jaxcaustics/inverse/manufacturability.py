@@ -9,7 +9,7 @@ import math
 
 import numpy as np
 
-from ..scene.scene import inside_outline
+from ..scene.outline import inside_outline
 from .lens_sampling import _MM, _check_number, _check_samples, _evaluate, _lens, _outline
 
 

@@ -19,6 +19,7 @@ import equinox as eqx
 import numpy as np
 
 from .._checks import check_real_array
+from ..scene.outline import check_outline
 from ..scene.scene import DirectionalLight, PointLight
 
 
@@ -62,7 +63,8 @@ class Rectangle(eqx.Module):
 
     width: float = eqx.field(static=True)
     height: float = eqx.field(static=True)
-    kind: ClassVar[str] = "rectangle"  # `LensScene.outline`
+    kind: ClassVar[str] = "rectangle"
+    lens_outline: ClassVar[str] = "rectangle"  # what `LensScene.outline` takes
 
     def __init__(self, width, height):
         self.width, self.height = _length(width, "width"), _length(height, "height")
@@ -80,6 +82,7 @@ class Ellipse(eqx.Module):
     width: float = eqx.field(static=True)
     height: float = eqx.field(static=True)
     kind: ClassVar[str] = "ellipse"
+    lens_outline: ClassVar[str] = "ellipse"
 
     def __init__(self, width, height):
         self.width, self.height = _length(width, "width"), _length(height, "height")
@@ -93,7 +96,44 @@ def Circle(diameter) -> Ellipse:  # noqa: N802 (reads as the class it builds)
     return Ellipse(d, d)
 
 
-Outline = Rectangle | Ellipse
+class Polygon(eqx.Module):
+    """A polygonal blank (a triangle, a hexagon, a star): `vertices` ``(N, 2)`` in metres,
+    in order round the centre of their bounding box, which must see every edge from
+    inside (the polygon is star-shaped about it: the exported solid is built on rings
+    about it). The blank is placed with that bounding box centred on ``x = y = 0``."""
+
+    vertices: tuple[tuple[float, float], ...] = eqx.field(static=True)
+    kind: ClassVar[str] = "polygon"
+
+    def __init__(self, vertices):
+        v = check_real_array(vertices, "vertices").astype(float)
+        if v.ndim != 2 or v.shape[1] != 2 or len(v) < 3 or not np.all(np.isfinite(v)):
+            raise ValueError(f"`vertices` must be (N, 2) finite metres, N >= 3, got {v.shape}")
+        v = v - 0.5 * (v.min(axis=0) + v.max(axis=0))  # the bounding box centred
+        if not np.all(v.max(axis=0) > 0):
+            raise ValueError("`vertices` span no area")
+        check_outline(v / v.max(axis=0), "vertices")  # star-shaped about the centre
+        self.vertices = tuple((float(x), float(y)) for x, y in v)
+
+    @property
+    def width(self) -> float:
+        return 2.0 * max(abs(x) for x, _ in self.vertices)
+
+    @property
+    def height(self) -> float:
+        return 2.0 * max(abs(y) for _, y in self.vertices)
+
+    @property
+    def lens_outline(self) -> tuple:
+        """The vertices in the aperture's frame normalised to ``[-1, 1]^2`` (as
+        `LensScene.outline` takes them), counter-clockwise."""
+        a, b = 0.5 * self.width, 0.5 * self.height
+        return check_outline([(x / a, y / b) for x, y in self.vertices], "vertices")
+
+    extent = Rectangle.extent
+
+
+Outline = Rectangle | Ellipse | Polygon
 
 
 class Screen(eqx.Module):
@@ -130,8 +170,8 @@ class DesignProblem(eqx.Module):
     **Arguments:**
 
     - `element`: a `Lens` (index, blank thickness).
-    - `outline`: the blank's outline: a `Rectangle`, an `Ellipse` or a `Circle` (light
-      outside it is stopped by the mount).
+    - `outline`: the blank's outline: a `Rectangle`, an `Ellipse`, a `Circle` or a
+      `Polygon` (light outside it is stopped by the mount).
     - `screen`: a `Screen` (its distance below the element, its extent).
     - `light`: a `DirectionalLight` (any angle, travelling down) or a `PointLight` above
       the element; default: collimated, straight down.
@@ -148,9 +188,9 @@ class DesignProblem(eqx.Module):
     def __init__(self, element, outline, screen, light=None):
         if not isinstance(element, Lens):
             raise ValueError(f"`element` must be a Lens, got {type(element).__name__}")
-        if not isinstance(outline, (Rectangle, Ellipse)):
+        if not isinstance(outline, (Rectangle, Ellipse, Polygon)):
             raise ValueError(
-                f"`outline` must be a Rectangle, an Ellipse or a Circle, got "
+                f"`outline` must be a Rectangle, an Ellipse, a Circle or a Polygon, got "
                 f"{type(outline).__name__}"
             )
         if not isinstance(screen, Screen):
@@ -182,6 +222,12 @@ class DesignProblem(eqx.Module):
 PROBLEM_FORMAT = "jaxcaustics-problem-1"
 
 
+def _outline_to_dict(outline) -> dict:
+    if isinstance(outline, Polygon):
+        return {"kind": "polygon", "vertices": [list(v) for v in outline.vertices]}
+    return {"kind": outline.kind, "width": outline.width, "height": outline.height}
+
+
 def problem_to_dict(problem: DesignProblem) -> dict:
     """`problem` as plain JSON-ready data (metres), read back by `problem_from_dict`."""
     light = problem.light
@@ -202,11 +248,7 @@ def problem_to_dict(problem: DesignProblem) -> dict:
             "thickness": problem.element.thickness,
             "ior": problem.element.ior,
         },  # fmt: skip
-        "outline": {
-            "kind": problem.outline.kind,
-            "width": problem.outline.width,
-            "height": problem.outline.height,
-        },  # fmt: skip
+        "outline": _outline_to_dict(problem.outline),
         "light": light_data,
         "screen": {
             "distance": screen.distance,
@@ -225,9 +267,13 @@ def problem_from_dict(data) -> DesignProblem:
         light, screen = data["light"], data["screen"]
         if element.get("kind") != "lens":
             raise ValueError(f"`element` kind {element.get('kind')!r} is not 'lens'")
-        shapes = {"rectangle": Rectangle, "ellipse": Ellipse}
+        shapes = {"rectangle": Rectangle, "ellipse": Ellipse, "polygon": Polygon}
         if outline.get("kind") not in shapes:
             raise ValueError(f"`outline` kind {outline.get('kind')!r} is not one of {list(shapes)}")
+        if outline["kind"] == "polygon":
+            built_outline = Polygon(outline["vertices"])
+        else:
+            built_outline = shapes[outline["kind"]](outline["width"], outline["height"])
         if light.get("kind") == "directional":
             built_light = DirectionalLight(np.asarray(light["direction"], float))
         elif light.get("kind") == "point":
@@ -237,7 +283,7 @@ def problem_from_dict(data) -> DesignProblem:
             raise ValueError(f"`light` kind {light.get('kind')!r} is not directional or point")
         return DesignProblem(
             Lens(element["thickness"], element["ior"]),
-            shapes[outline["kind"]](outline["width"], outline["height"]),
+            built_outline,
             Screen(screen["distance"], screen.get("extent")),
             built_light,
         )

@@ -187,7 +187,7 @@ def _transport_goal(
 
     top = setup.screen_distance + setup.thickness
     source = _source_density(setup.light, setup.aperture, shape, top)
-    source = source * aperture_coverage(setup.problem.outline.kind, setup.aperture, shape)
+    source = source * aperture_coverage(setup.problem.outline.lens_outline, setup.aperture, shape)
     if keep is not None:
         source = source * keep
     target = area_average(setup.goal, shape)

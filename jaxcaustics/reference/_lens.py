@@ -170,7 +170,9 @@ class _Lens:
     iors: tuple[float, ...]
     multichannel: bool
     fresnel: bool
-    outline: str = "rectangle"  # or "ellipse": the one inscribed in the extent
+    # "rectangle", "ellipse" (the one inscribed in the extent) or a polygon's vertices in
+    # the extent's frame normalised to [-1, 1]^2
+    outline: str | tuple = "rectangle"
 
     @property
     def top(self) -> float:
@@ -218,10 +220,15 @@ def _read_lens(scene) -> _Lens:
     return lens
 
 
-def _read_outline(outline) -> str:
-    if outline not in ("rectangle", "ellipse"):
-        raise ValueError(f"`scene.outline` must be 'rectangle' or 'ellipse', got {outline!r}")
-    return outline
+def _read_outline(outline) -> str | tuple:
+    if isinstance(outline, str):
+        if outline not in ("rectangle", "ellipse"):
+            raise ValueError(f"`scene.outline` must be 'rectangle' or 'ellipse', got {outline!r}")
+        return outline
+    v = np.asarray(outline, dtype=np.float64)
+    if v.ndim != 2 or v.shape[1] != 2 or v.shape[0] < 3 or not np.all(np.isfinite(v)):
+        raise ValueError(f"`scene.outline` must be a name or (x, y) vertices, got {outline!r}")
+    return tuple(map(tuple, v))
 
 
 def _field_to_world(surf: _Surface, u: np.ndarray, v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -239,18 +246,27 @@ def _in_aperture(
     surf: _Surface, x: np.ndarray, y: np.ndarray, outline: str = "rectangle"
 ) -> np.ndarray:
     """Whether world points of the rest plane lie in the (rotated) extent, half-open, and
-    for an ``"ellipse"`` outline inside the ellipse inscribed in it (rim included)."""
+    inside the outline: the ellipse inscribed in it (rim included), or a polygon."""
     e = surf.extent
     if surf.rotation != 0.0:
         cx, cy = 0.5 * (e[0] + e[1]), 0.5 * (e[2] + e[3])
         x, y = surf.to_field(x - cx, y - cy)
         x, y = x + cx, y + cy
     inside = (x >= e[0]) & (x < e[1]) & (y >= e[2]) & (y < e[3])
+    if outline == "rectangle":
+        return inside
+    ex = (x - 0.5 * (e[0] + e[1])) / (0.5 * (e[1] - e[0]))
+    ey = (y - 0.5 * (e[2] + e[3])) / (0.5 * (e[3] - e[2]))
     if outline == "ellipse":
-        ex = (x - 0.5 * (e[0] + e[1])) / (0.5 * (e[1] - e[0]))
-        ey = (y - 0.5 * (e[2] + e[3])) / (0.5 * (e[3] - e[2]))
-        inside &= ex * ex + ey * ey <= 1.0
-    return inside
+        return inside & (ex * ex + ey * ey <= 1.0)
+    # a polygon: the crossing number of a ray towards +x (odd: inside)
+    crossings = np.zeros(x.shape, dtype=bool)
+    for (xa, ya), (xb, yb) in zip(outline, outline[1:] + outline[:1], strict=True):
+        if ya == yb:
+            continue
+        straddles = (ya > ey) != (yb > ey)
+        crossings ^= straddles & (ex < xa + (ey - ya) * ((xb - xa) / (yb - ya)))
+    return inside & crossings
 
 
 def _intersect_rays(

@@ -38,6 +38,7 @@ from .._checks import (
     check_shape,
     renamed_keyword,
 )
+from .outline import check_outline
 
 BOUNDARY_MODES = ("periodic", "clamp", "extrapolate")
 
@@ -399,23 +400,6 @@ def check_light(light) -> None:
         )
 
 
-# the outlines of a lens blank (`LensScene.outline`), each inscribed in the aperture
-OUTLINES = ("rectangle", "ellipse")
-
-
-def inside_outline(outline: str, extent, u, v):
-    """Whether the points ``(u, v)`` (the aperture's own, unrotated frame) lie inside the
-    blank's `outline` over `extent` ``(x_min, x_max, y_min, y_max)``: all of the
-    rectangle, or the ellipse inscribed in it (its rim included). Works on NumPy and JAX
-    arrays alike."""
-    x0, x1, y0, y1 = extent
-    if outline == "rectangle":
-        return (u >= x0) & (u <= x1) & (v >= y0) & (v <= y1)
-    a, b = 0.5 * (x1 - x0), 0.5 * (y1 - y0)
-    ex, ey = (u - 0.5 * (x0 + x1)) / a, (v - 0.5 * (y0 + y1)) / b
-    return ex * ex + ey * ey <= 1.0
-
-
 class LensScene(eqx.Module):
     """A glass slab with a height-field top and a flat bottom over a screen: the scene of
     caustic lens design.
@@ -442,9 +426,10 @@ class LensScene(eqx.Module):
       channel per index (dispersion), like `WaterScene`.
     - `fresnel`: multiply each photon by the exact unpolarised transmittances of both
       faces.
-    - `outline`: the blank's outline (static): ``"rectangle"`` (the aperture, default) or
-      ``"ellipse"`` (the ellipse inscribed in the aperture: a round lens in a round
-      mount; light outside it is stopped).
+    - `outline`: the blank's outline (static, `jaxcaustics.scene.outline`):
+      ``"rectangle"`` (the aperture, default), ``"ellipse"`` (the ellipse inscribed in
+      the aperture: a round lens in a round mount) or a star-shaped polygon's vertices
+      in the aperture's normalised frame ``[-1, 1]^2``; light outside it is stopped.
     - `throw`: the old name of `screen_distance` (a `DeprecationWarning`).
 
     Images are irradiance relative to the irradiance the light gives a horizontal plane
@@ -458,7 +443,7 @@ class LensScene(eqx.Module):
     screen_distance: Float[Array, ""]
     ior: float | tuple[float, ...] = eqx.field(static=True)
     fresnel: bool = eqx.field(static=True)
-    outline: str = eqx.field(static=True)
+    outline: str | tuple = eqx.field(static=True)
 
     def __init__(
         self,
@@ -470,7 +455,7 @@ class LensScene(eqx.Module):
         *,
         ior: float | Sequence[float] = 1.5,
         fresnel: bool = False,
-        outline: str = "rectangle",
+        outline: str | Sequence = "rectangle",
         throw=None,
     ):
         if not isinstance(surface, HeightField):
@@ -489,7 +474,7 @@ class LensScene(eqx.Module):
         self.screen_distance = check_positive_scalar(screen_distance, "screen_distance")
         self.ior = check_ior(ior)
         self.fresnel = check_bool(fresnel, "fresnel")
-        self.outline = check_choice(outline, "outline", OUTLINES)
+        self.outline = check_outline(outline)
         _check_surface_above(surface, self.thickness, "thickness", "dips through the bottom face")
         if isinstance(light, PointLight) and is_concrete(light.position):
             top = float(self.screen_distance) + float(self.thickness)

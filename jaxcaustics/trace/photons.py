@@ -23,7 +23,8 @@ import jax.numpy as jnp
 from jaxtyping import Array, Bool, Float
 
 from ..scene.mesh import MeshScene
-from ..scene.scene import DirectionalLight, LensScene, inside_outline
+from ..scene.outline import inside_outline
+from ..scene.scene import DirectionalLight, LensScene
 from ..scene.surface import ray_surface_hit
 from .intersect import face_normals, hit_on_triangle, nearest_hits, search_tree, vertex_normals
 from .optics import fresnel_transmittance, orthonormal_basis, reflect, refract_components
