@@ -162,3 +162,14 @@ def test_recover_takes_a_folder_of_frames(tmp_path):
     for k in range(2):
         assert read_exr(out / f"heights_{k:04d}.exr").shape == (24, 24)
         assert (out / f"residual_{k:04d}.png").is_file()
+
+
+def test_an_outline_that_is_no_shape_is_one_line_naming_the_flag(tmp_path, capsys):
+    bow_tie = tmp_path / "bow_tie.txt"
+    bow_tie.write_text("-1 -1\n1 1\n1 -1\n-1 1\n")
+    words = tmp_path / "words.txt"
+    words.write_text("a star\n")
+    for spec in ("hexagon", str(bow_tie), str(words)):
+        assert main(["design", "--outline", spec, "--output", str(tmp_path / "out")]) == 2
+        err = capsys.readouterr().err
+        assert "`--outline`" in err and len(err.strip().splitlines()) == 1, err

@@ -26,7 +26,14 @@ import numpy as np
 from ..inverse.design import design as design_element
 from ..inverse.design import lens_problem
 from ..inverse.export import export_lens
-from ..inverse.problem import DesignProblem, Ellipse, problem_to_dict
+from ..inverse.problem import (
+    Circle,
+    DesignProblem,
+    Ellipse,
+    Polygon,
+    Rectangle,
+    problem_to_dict,
+)
 from ..inverse.solvers import SOLVER_NAMES
 from ..inverse.verify import verify_lens
 from ..io.images import read_image, write_exr, write_png
@@ -116,9 +123,11 @@ def add_design(subparsers) -> None:
     design.add_argument(
         "--outline",
         default="rectangle",
-        choices=("rectangle", "circle", "ellipse"),
+        metavar="OUTLINE",
         help="the blank's outline: rectangle (default), circle (--width across; a round "
-        "lens in a round mount) or ellipse (--width by --height)",
+        "lens in a round mount), ellipse (--width by --height), or FILE: a polygon's "
+        "vertices, one 'x y' pair a line, star-shaped about the centre of their box, "
+        "scaled to --width",
     )
     design.add_argument(
         "--zenith",
@@ -231,14 +240,41 @@ def _write_json(path: Path, data: dict) -> None:
     os.replace(tmp, path)
 
 
+def _outline(spec: str, width: float, height: float):
+    """`--outline`: a name, or a file of polygon vertices scaled to `width`."""
+    if spec == "rectangle":
+        return Rectangle(width, height)
+    if spec == "circle":
+        return Circle(width)
+    if spec == "ellipse":
+        return Ellipse(width, height)
+    if not Path(spec).is_file():
+        raise ValueError(
+            f"`--outline` {spec!r} is neither rectangle, circle, ellipse nor a file of vertices"
+        )
+    try:
+        vertices = np.loadtxt(spec, ndmin=2)
+    except ValueError as err:
+        raise ValueError(f"`--outline` {spec!r}: not 'x y' pairs, one a line ({err})") from err
+    if vertices.ndim != 2 or vertices.shape[1] != 2 or len(vertices) < 3:
+        raise ValueError(f"`--outline` {spec!r}: needs 3 or more 'x y' lines")
+    span = float(np.ptp(vertices[:, 0]))
+    if not span > 0:
+        raise ValueError(f"`--outline` {spec!r}: the vertices span no width")
+    try:
+        return Polygon(vertices * (width / span))
+    except ValueError as err:
+        raise ValueError(f"`--outline` {spec!r}: {err}") from err
+
+
 def run_design(args: argparse.Namespace) -> int:
     out = output_folder(args.output)
     checkpoint = out / "design.ckpt"
     resume_checkpoint(checkpoint, args.resume)
     target = _load_target(args.target, args.size)
     height = args.height or args.width * target.shape[0] / target.shape[1]
-    if args.outline == "circle":
-        height = args.width
+    outline = _outline(args.outline, args.width, height)
+    height = outline.height
     problem, start, finish = lens_problem(
         width=args.width,
         height=height,
@@ -251,9 +287,7 @@ def run_design(args: argparse.Namespace) -> int:
         solver=args.solver,
         light=DirectionalLight.from_angles(args.zenith, args.azimuth),
     )
-    if args.outline != "rectangle":
-        outline = Ellipse(problem.outline.width, problem.outline.height)
-        problem = DesignProblem(problem.element, outline, problem.screen, problem.light)
+    problem = DesignProblem(problem.element, outline, problem.screen, problem.light)
     losses: list[float] = []
 
     def step_done(info):
