@@ -10,7 +10,6 @@ import pytest
 import jaxcaustics as jc
 import jaxcaustics.inverse.design as design_module
 from jaxcaustics.inverse import driver
-from jaxcaustics.reference import trace_lens
 
 SPEC = dict(width=0.1, height=0.1, thickness=0.02, screen_distance=0.5)
 PROBLEM = jc.DesignProblem(jc.Lens(thickness=0.02), jc.Rectangle(0.1, 0.1), jc.Screen(0.5))
@@ -53,16 +52,17 @@ def test_design_lens_is_design_with_its_keywords_under_the_transport_start():
     assert new.problem == PROBLEM
 
 
+@pytest.mark.slow  # 19 s (compiling two levels); the transport start's twin runs by default
 def test_design_lens_is_design_with_its_keywords_under_the_poisson_levels():
     light = jc.DirectionalLight.from_angles(10.0)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        old = jc.design_lens(blob(), **SPEC, light=light, start="poisson", levels=(8, 16),
-                             max_steps=5)  # fmt: skip
+        old = jc.design_lens(blob(), **SPEC, light=light, start="poisson", levels=(8, 12),
+                             max_steps=3)  # fmt: skip
         problem = jc.DesignProblem(PROBLEM.element, PROBLEM.outline, PROBLEM.screen, light)
-        new = jc.design(problem, blob(), start=jc.PoissonLevels((8, 16), 5), finish=None)
+        new = jc.design(problem, blob(), start=jc.PoissonLevels((8, 12), 3), finish=None)
     same(old, new)
-    assert [r["shape"] for r in new.levels] == [(8, 8), (16, 16)]
+    assert [r["shape"] for r in new.levels] == [(8, 8), (12, 12)]
 
 
 def test_every_level_report_carries_an_optimistix_result():
@@ -73,14 +73,6 @@ def test_every_level_report_carries_an_optimistix_result():
         assert isinstance(report["result"], optx.RESULTS), report
     # the refinement is a step budget: stopping at it is no shortfall
     assert d.levels[-1]["budget"] and d.converged
-
-
-def test_a_round_design_judged_by_the_reference_matches_its_target():
-    """The design of `design` (its defaults) traced by the reference: the blob is met."""
-    d = jc.design(PROBLEM, blob())
-    error = float(jc.relative_l2(trace_lens(d.scene, 512), blob()))
-    # measured 0.024 (the flat lens: 0.34)
-    assert error < 0.05, error
 
 
 # ----------------------------------------------------------------- the driver
@@ -191,7 +183,7 @@ def test_design_refuses_bad_arguments_before_any_work(no_work, kwargs, name):
 
 
 def test_an_interrupted_design_resumes_where_it_stopped_and_ends_the_same(tmp_path):
-    levels = jc.PoissonLevels((8, 16), max_steps=4)
+    levels = jc.PoissonLevels((8, 12), max_steps=3)
     options = dict(start=levels, finish=None, warn_error=10.0)
     whole = jc.design(PROBLEM, blob(), **options)
 

@@ -131,6 +131,7 @@ def test_a_star_blank_passes_the_light_of_the_star_alone():
     assert jc.relative_l2(image, ref) < 0.02
 
 
+@pytest.mark.slow  # 8 s; the round lens's design (above) runs in the default suite
 def test_a_star_lens_is_designed_and_exported_as_a_star(tmp_path):
     outline = jc.Polygon(star())
     problem = jc.DesignProblem(jc.Lens(0.01), outline, jc.Screen(0.5))
