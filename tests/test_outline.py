@@ -59,6 +59,8 @@ def disc_target(n=24):
     return 0.4 + np.exp(-((xx - 0.1) ** 2 + (yy + 0.05) ** 2) / 0.02)
 
 
+@pytest.mark.slow  # 9 s: a design (the default suite's budget); light through the ellipse,
+# the report and the refusals above and below run by default
 def test_a_round_lens_design_matches_its_target_by_the_reference(tmp_path):
     target = disc_target()
     d = round_design(target)
@@ -131,7 +133,7 @@ def test_a_star_blank_passes_the_light_of_the_star_alone():
     assert jc.relative_l2(image, ref) < 0.02
 
 
-@pytest.mark.slow  # 8 s; the round lens's design (above) runs in the default suite
+@pytest.mark.slow  # 8 s: a design
 def test_a_star_lens_is_designed_and_exported_as_a_star(tmp_path):
     outline = jc.Polygon(star())
     problem = jc.DesignProblem(jc.Lens(0.01), outline, jc.Screen(0.5))

@@ -267,6 +267,38 @@ def _outline(spec: str, width: float, height: float):
         raise ValueError(f"`--outline` {spec!r}: {err}") from err
 
 
+def describe_folder(out: Path, design, start, finish, *, source: str, max_relief) -> None:
+    """Write ``design.json`` and ``target.exr`` into the design folder `out` (where
+    `export_lens` wrote ``lens_height.exr``): every parameter of `design`'s problem, its
+    strategies, the target and how it was scaled, so that the folder alone is enough to
+    verify the part (`jaxcaustics verify`)."""
+    target = np.asarray(design.target)
+    write_exr(out / "target.exr", target)
+    _write_json(
+        out / "design.json",
+        {
+            "problem": problem_to_dict(design.problem),
+            "start": _settings(start),
+            "finish": _settings(finish),
+            "max_relief": max_relief,
+            "target": {
+                "source": source,
+                "scaled": f"luminance (the mean of R, G, B), resized to {target.shape[1]} "
+                "columns with anti-aliasing; unit mean in the design",
+                "file": "target.exr",
+                "shape": list(target.shape),
+            },
+            "screen": {"extent": list(map(float, design.scene.receiver.extent))},
+            "heights": {
+                "file": "lens_height.exr",
+                "units": "millimetres above the bottom face",
+                "samples": "the design's own heights at the odd rows and columns",
+                "boundary": design.scene.surface.boundary,
+            },
+        },
+    )
+
+
 def run_design(args: argparse.Namespace) -> int:
     out = output_folder(args.output)
     checkpoint = out / "design.ckpt"
@@ -315,31 +347,9 @@ def run_design(args: argparse.Namespace) -> int:
     paths = export_lens(design.scene, out, tool_radius_mm=args.tool_radius * 1000)
     write_png(out / "predicted.png", design.predicted)
     write_png(out / "target.png", target)
-    write_exr(out / "target.exr", target)
     _loss_plot(losses, out / "loss.png")
-    # the folder describes its design: enough to verify the part (`jaxcaustics verify`)
-    _write_json(
-        out / "design.json",
-        {
-            "problem": problem_to_dict(problem),
-            "start": _settings(start),
-            "finish": _settings(finish),
-            "max_relief": args.max_relief,
-            "target": {
-                "source": args.target or "camera",
-                "scaled": f"luminance (the mean of R, G, B), resized to {target.shape[1]} "
-                f"columns with anti-aliasing; unit mean in the design",
-                "file": "target.exr",
-                "shape": list(target.shape),
-            },
-            "screen": {"extent": list(map(float, design.scene.receiver.extent))},
-            "heights": {
-                "file": paths["height_exr"].name,
-                "units": "millimetres above the bottom face",
-                "samples": "the design's own heights at the odd rows and columns",
-                "boundary": design.scene.surface.boundary,
-            },
-        },
+    describe_folder(
+        out, design, start, finish, source=args.target or "camera", max_relief=args.max_relief
     )
     summary = {
         "start": args.start,
