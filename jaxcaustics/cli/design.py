@@ -41,13 +41,13 @@ from ..scene.scene import DirectionalLight
 from .flags import (
     MAX_PIXELS,
     MAX_SIDE,
+    add_light_angles,
     int_at_least,
     length,
     number,
     output_folder,
     resume_checkpoint,
     with_flags,
-    zenith,
 )
 
 _NOT_PICTURES = {"download_all", "data_dir", "file_hash", "lbp_frontal_face_cascade_filename"}
@@ -129,20 +129,7 @@ def add_design(subparsers) -> None:
         "vertices, one 'x y' pair a line, star-shaped about the centre of their box, "
         "scaled to --width",
     )
-    design.add_argument(
-        "--zenith",
-        type=zenith,
-        default=0.0,
-        metavar="DEG",
-        help="angle of the collimated light from vertical, degrees, in [0, 90) (default 0)",
-    )
-    design.add_argument(
-        "--azimuth",
-        type=number(),
-        default=0.0,
-        metavar="DEG",
-        help="direction the light travels towards, degrees from +x towards +y (default 0)",
-    )
+    add_light_angles(design, zenith_deg=0.0, azimuth_deg=0.0)
     design.add_argument(
         "--size",
         type=int_at_least(2, MAX_SIDE),

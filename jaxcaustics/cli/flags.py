@@ -116,3 +116,22 @@ def with_flags(run: Callable[[argparse.Namespace], int], flags: dict[str, str]):
 
 
 # names in `skimage.data` that are not pictures (or would download several)
+
+
+def add_light_angles(parser, *, zenith_deg: float, azimuth_deg: float) -> None:
+    """`--zenith` and `--azimuth` of a collimated light, with these defaults (degrees)."""
+    parser.add_argument(
+        "--zenith",
+        type=zenith,
+        default=zenith_deg,
+        metavar="DEG",
+        help="angle of the light from vertical, degrees, in [0, 90) (default: %(default)s)",
+    )
+    parser.add_argument(
+        "--azimuth",
+        type=number(),
+        default=azimuth_deg,
+        metavar="DEG",
+        help="direction the light travels towards, degrees from +x towards +y "
+        "(default: %(default)s)",
+    )

@@ -27,7 +27,14 @@ from jaxcaustics import __version__
 from jaxcaustics.methods.twopass import MAX_AUTO_HALF_WINDOW
 
 from .design import add_design
-from .flags import MAX_PIXELS, int_at_least, number, output_folder, with_flags, zenith
+from .flags import (
+    MAX_PIXELS,
+    add_light_angles,
+    int_at_least,
+    number,
+    output_folder,
+    with_flags,
+)
 from .recover import add_recover
 from .verify import add_verify
 
@@ -181,21 +188,7 @@ def _add_render(subparsers) -> None:
     )
 
     g = water.add_argument_group("light and optics")
-    g.add_argument(
-        "--zenith",
-        type=zenith,
-        default=20.0,
-        metavar="DEG",
-        help="angle of the light from vertical, degrees, in [0, 90) (default: %(default)s)",
-    )
-    g.add_argument(
-        "--azimuth",
-        type=number(),
-        default=30.0,
-        metavar="DEG",
-        help="direction the light travels towards, degrees from +x towards +y "
-        "(default: %(default)s)",
-    )
+    add_light_angles(g, zenith_deg=20.0, azimuth_deg=30.0)
     g.add_argument(
         "--ior",
         type=_ior,
