@@ -16,10 +16,12 @@ instance or a name.
 Build a scene (`WaterScene`: a `HeightField` water surface; `LensScene`: a glass slab
 with a height-field top; `MeshScene`: a glass or mirror `Mesh` with optional occluders;
 `EllipsoidScene`: a glass `Ellipsoid` or sphere; each with a `DirectionalLight` or
-`PointLight` and a `PlaneReceiver`), then `render` it.
+`PointLight` and a `PlaneReceiver`; `MirrorScene`: a height-field mirror with a screen
+placed by a `ScreenPose`), then `render` it.
 
-Inverse problems: `design` (a caustic lens for a target picture: a `DesignProblem` of a
-`Lens`, an outline (`Rectangle`, `Ellipse`, `Circle`, `Polygon`), a `Screen` and a light, solved
+Inverse problems: `design` (a caustic lens or mirror for a target picture: a
+`DesignProblem` of a `Lens` or a `Mirror`, an outline (`Rectangle`, `Ellipse`,
+`Circle`, `Polygon`), a `Screen` (anywhere: `ScreenPose`) and a light, solved
 by a `TransportStart` from the optimal transport `transport_map`, or `PoissonLevels`,
 finished by an `ImageRefinement`; `design_lens` is its keyword form; `export_lens`
 writes it for the workshop, `manufacturability` reports whether it can be milled,
@@ -40,7 +42,16 @@ from .inverse.export import (
 )
 from .inverse.image_refine import ImageRefinement
 from .inverse.poisson_levels import PoissonLevels
-from .inverse.problem import Circle, DesignProblem, Ellipse, Lens, Polygon, Rectangle, Screen
+from .inverse.problem import (
+    Circle,
+    DesignProblem,
+    Ellipse,
+    Lens,
+    Mirror,
+    Polygon,
+    Rectangle,
+    Screen,
+)
 from .inverse.recover import RecoveryResult, recover_surface
 from .inverse.sequence import SequenceResult, recover_sequence
 from .inverse.transport import TransportMap, transport_map
@@ -104,6 +115,7 @@ from .methods.triangles.method import (
 from .methods.twopass import TwoPass, TwoPassResult, auto_window, two_pass
 from .scene.ellipsoid import Ellipsoid, EllipsoidScene
 from .scene.mesh import Mesh, MeshScene
+from .scene.mirror import MirrorScene
 from .scene.scene import (
     DirectionalLight,
     Effects,
@@ -113,6 +125,7 @@ from .scene.scene import (
     PointLight,
     WaterScene,
 )
+from .scene.screen_pose import ScreenPose
 from .scene.surface import height_and_gradient
 from .scene.waves import gaussian_bump, sine_sum, wave_heights
 from .trace.optics import fresnel_transmittance, reflect, refract
@@ -179,6 +192,8 @@ __all__ = [
     "map_sharded",
     "Mesh",
     "MeshScene",
+    "Mirror",
+    "MirrorScene",
     "Method",
     "method_support",
     "photon_bytes",
@@ -208,6 +223,7 @@ __all__ = [
     "render_spot_lights",
     "RenderResult",
     "Screen",
+    "ScreenPose",
     "SequenceResult",
     "shade_points",
     "sine_sum",

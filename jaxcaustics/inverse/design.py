@@ -475,7 +475,7 @@ def _finish(setup: Setup, h, history, level_reports, result, t_start: float) -> 
             f"{h.max() - h.min():.4g} m, so the surface dips through the bottom face"
         )
         raise ValueError(msg)
-    final = setup.lens_scene(h)
+    final = setup.element_scene(h)
     t0 = time.perf_counter()
 
     n_pred = setup.predict_photons or predict_photons_default(setup.target_shape)

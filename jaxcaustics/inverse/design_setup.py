@@ -9,8 +9,9 @@ from typing import Any
 
 import numpy as np
 
+from ..scene.mirror import MirrorScene
 from ..scene.scene import HeightField, LensScene, PlaneReceiver
-from .problem import DesignProblem
+from .problem import DesignProblem, Mirror
 
 
 @dataclasses.dataclass
@@ -36,27 +37,37 @@ class Setup:
     initial: Any
     timings: dict[str, float]
     warn_error: float = 0.15
+    pose: Any = None  # the screen's `ScreenPose`; None: the ground under a lens
+    # whether the screen's s and t axes run against the blank's x and y (a mirror's do)
+    flips: tuple[bool, bool] = (False, False)
 
     width = property(lambda self: self.problem.outline.width)
     height = property(lambda self: self.problem.outline.height)
     thickness = property(lambda self: self.problem.element.thickness)
-    ior = property(lambda self: self.problem.element.ior)
     screen_distance = property(lambda self: self.problem.screen.distance)
     light = property(lambda self: self.problem.light)
+    top = property(lambda self: self.problem.top)
+    is_mirror = property(lambda self: isinstance(self.problem.element, Mirror))
 
     @property
     def boundary(self) -> str:
         """The designed surface's `HeightField` boundary (the start's)."""
         return self.start.boundary
 
-    def lens_scene(self, heights) -> LensScene:
-        """The design's lens with `heights` (bicubic over the aperture, `boundary`)."""
+    def element_scene(self, heights) -> LensScene | MirrorScene:
+        """The design's element with `heights` (bicubic over the aperture, `boundary`):
+        a `LensScene` or a `MirrorScene`."""
+        surface = HeightField(heights, self.aperture, self.boundary)
+        outline = self.problem.outline.lens_outline
+        if self.is_mirror:
+            return MirrorScene(surface, self.light, self.receiver, self.pose, outline=outline)
         return LensScene(
-            HeightField(heights, self.aperture, self.boundary),
+            surface,
             self.light,
             self.receiver,
             self.thickness,
             self.screen_distance,
-            ior=self.ior,
-            outline=self.problem.outline.lens_outline,
+            ior=self.problem.element.ior,
+            outline=outline,
+            screen_pose=self.pose,
         )

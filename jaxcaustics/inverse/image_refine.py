@@ -154,7 +154,7 @@ class ImageRefinement(eqx.Module):
         # (u ~ slope x samples; measured: with the gain L-BFGS barely moved in 12 steps)
         symbol = fit_symbol(h.shape, setup.width / cols, setup.height / rows, 1.0, 1.0)
         refine = _ImageRefine(
-            setup.lens_scene(np.asarray(h)),
+            setup.element_scene(np.asarray(h)),
             jnp.asarray(goal, dtype),
             jnp.asarray(goal < 0.05),
             jnp.asarray(np.sqrt(symbol), dtype),

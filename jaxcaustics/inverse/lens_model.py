@@ -21,12 +21,13 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from ..scene.mirror import MirrorScene
 from ..scene.outline import inside_outline
 from ..scene.scene import DirectionalLight, LensScene
 from ..scene.surface import PAD_LOW, catmull_rom, pad_heights, ray_surface_hit
 from ..scene.surface import bilinear as _bilinear
 from ..trace.optics import refract_components
-from ..trace.photons import corner_grid
+from ..trace.photons import corner_grid, reflect_components
 from .design_setup import Setup
 from .numerics import area_average, neumann_laplacian, neumann_poisson, safe_log_area
 
@@ -43,7 +44,7 @@ class LensModel(eqx.Module):
     """The lens's optics on one grid: everything a residual needs (arrays are leaves;
     shapes static)."""
 
-    scene: LensScene
+    scene: LensScene | MirrorScene
     log_target: jax.Array  # (rows, cols) log of the screen irradiance to reach
     screen: jax.Array  # (4,) extent
     weak: (
@@ -98,11 +99,17 @@ class LensModel(eqx.Module):
         scene = self.scene
         inv = jax.lax.rsqrt(hx * hx + hy * hy + 1.0)
         normal = (-hx * inv, -hy * inv, inv)
+        if isinstance(scene, MirrorScene):  # reflected, onto the screen's (s, t)
+            out = reflect_components(d, normal)
+            return scene.screen_pose.land((hit_x, hit_y, hit_z), out)[:2]
         inside, _, _ = refract_components(d, normal, 1.0 / scene.ior)
         s = (hit_z - scene.screen_distance) / -jnp.minimum(inside[2], -1e-12)
         bx, by = hit_x + s * inside[0], hit_y + s * inside[1]
         up = (jnp.zeros_like(hx), jnp.zeros_like(hx), jnp.ones_like(hx))
         out, _, _ = refract_components(inside, up, scene.ior)
+        if scene.screen_pose is not None:
+            bottom = (bx, by, jnp.broadcast_to(scene.screen_distance, bx.shape))
+            return scene.screen_pose.land(bottom, out)[:2]
         t = scene.screen_distance / -jnp.minimum(out[2], -1e-12)
         return bx + t * out[0], by + t * out[1]
 
@@ -298,7 +305,7 @@ def level_model(
         vertex_sampling(shape, setup.aperture, grid, setup.boundary) if setup.vertical else None
     )
     return LensModel(
-        setup.lens_scene(np.zeros(shape)),
+        setup.element_scene(np.zeros(shape)),
         jnp.log(jnp.maximum(level_goal * setup.flux_scale, jnp.finfo(dtype).tiny)),
         jnp.asarray(setup.screen, dtype),
         jnp.asarray(setup.weak, dtype),

@@ -20,7 +20,8 @@ from .image_refine import _REFINE_MEMORY, ImageRefinement
 from .lens_model import aperture_coverage
 from .numerics import area_average, check_irradiance, neumann_poisson
 from .poisson_levels import PoissonLevels
-from .problem import DesignProblem, _length
+from .problem import DesignProblem, Lens, _length
+from .screen_geometry import check_beam_clear, flat_footprint, screen_pose
 from .transport import MAX_PIXELS
 from .transport_start import TransportStart
 
@@ -178,7 +179,7 @@ def prepare(
     if finish is not None and not isinstance(finish, ImageRefinement):
         raise ValueError(f"`finish` must be an ImageRefinement or None, got {finish!r}")
     width, height = problem.outline.width, problem.outline.height
-    thickness, ior = problem.element.thickness, problem.element.ior
+    thickness = problem.element.thickness
     screen_distance, light = problem.screen.distance, problem.light
     t = _check_target(target)
     m = check_mask(mask, t.shape)
@@ -191,6 +192,11 @@ def prepare(
     if max_relief is not None:
         max_relief = _length(max_relief, "max_relief")
     warn_error = check_number(warn_error, "warn_error", low=0.0, low_open=True)
+    if isinstance(start, PoissonLevels) and problem.posed:
+        raise ValueError(
+            "`start`: the Poisson levels need the ground screen under a lens; design a "
+            "mirror or a posed screen with the TransportStart"
+        )
     if isinstance(start, PoissonLevels) and problem.outline.lens_outline != "rectangle":
         raise ValueError(
             "`start`: the Poisson levels need light over the whole rectangle (their "
@@ -212,19 +218,30 @@ def prepare(
     )
     aperture = problem.outline.extent
     dtype = jnp.result_type(float)
-    LensScene(  # checks the light against the lens (a point light inside it, ...)
-        HeightField(np.zeros((4, 4)), aperture, "clamp"),
-        light,
-        PlaneReceiver(np.array([-1.0, 1.0, -1.0, 1.0]), t.shape),
-        thickness,
-        screen_distance,
-        ior=ior,
-        outline=problem.outline.lens_outline,
-    )
-    footprint, flat_flux = _flat_lens(light, aperture, thickness, screen_distance, ior)
-    flat_flux *= float(np.mean(aperture_coverage(problem.outline.lens_outline, aperture, (64, 64))))
+    pose = screen_pose(problem)
+    coverage = float(np.mean(aperture_coverage(problem.outline.lens_outline, aperture, (64, 64))))
+    flips = (False, False)
+    if isinstance(problem.element, Lens):
+        ior = problem.element.ior
+        LensScene(  # checks the light against the lens (a point light inside it, ...)
+            HeightField(np.zeros((4, 4)), aperture, "clamp"),
+            light,
+            PlaneReceiver(np.array([-1.0, 1.0, -1.0, 1.0]), t.shape),
+            thickness,
+            screen_distance,
+            ior=ior,
+            outline=problem.outline.lens_outline,
+            screen_pose=pose,
+        )
+    if pose is None:
+        footprint, flat_flux = _flat_lens(light, aperture, thickness, screen_distance, ior)
+    else:
+        footprint, flat_flux, flips = flat_footprint(problem, pose)
+    flat_flux *= coverage
     given = problem.screen.extent
     screen = footprint if given is None else np.asarray(given, float)
+    if pose is not None:
+        check_beam_clear(problem, pose, screen)
     receiver = PlaneReceiver(screen, t.shape)
 
     # the target: unit mean over the screen, masked, plus the floor, scaled to the flux
@@ -236,10 +253,14 @@ def prepare(
     flux_scale = flat_flux / (goal.sum() * pixel_area)
 
     vertical = isinstance(light, DirectionalLight) and _vertical(light)
-    weak = (ior - 1.0) * (screen_distance + thickness / ior)
+    if isinstance(problem.element, Lens):
+        weak = (ior - 1.0) * (screen_distance + thickness / ior)
+    else:  # a mirror turns a ray by twice its slope
+        weak = 2.0 * screen_distance
     if isinstance(light, PointLight):  # a diverging beam: the screen is magnified
         lz = float(np.asarray(light.position)[2])
-        weak *= (lz) / max(lz - screen_distance - thickness, 1e-12)
+        below = lz - screen_distance - thickness if isinstance(problem.element, Lens) else lz
+        weak *= (lz) / max(below, 1e-12)
 
     # ------------------------------------------------------------ initial guess
     t0 = time.perf_counter()
@@ -275,4 +296,6 @@ def prepare(
         initial=initial,
         timings=timings,
         warn_error=float(warn_error),
+        pose=pose,
+        flips=flips,
     )

@@ -5,9 +5,11 @@ transport start, the image refinement, the Poisson levels) is said apart, by the
 strategies. Every part is an Equinox Module checked when it is built, so a bad problem
 is refused by name before anything is compiled.
 
-Lengths are metres. The element's bottom face lies at ``z = screen.distance`` above the
-screen (``z = 0``); the blank's outline is centred on ``x = y = 0``; light travels
-towards the element and through it down to the screen.
+Lengths are metres. The blank's outline is centred on ``x = y = 0``. A lens's bottom
+face lies at ``z = screen.distance`` above the ground ``z = 0``, which is its screen
+unless the `Screen` is posed (facing the refracted beam, or any normal); light travels
+down through it. A mirror's face rests on ``z = 0``, facing up: light comes down onto it
+and its screen stands in the reflected beam, facing the mirror.
 """
 
 from __future__ import annotations
@@ -48,6 +50,7 @@ class Lens(eqx.Module):
 
     thickness: float = eqx.field(static=True)
     ior: float = eqx.field(static=True)
+    kind: ClassVar[str] = "lens"
 
     def __init__(self, thickness, ior=1.5):
         self.thickness = _length(thickness, "thickness")
@@ -56,6 +59,26 @@ class Lens(eqx.Module):
         self.ior = _length(ior, "ior")
         if self.ior <= 1.0:
             raise ValueError(f"`ior` must be > 1 for a glass lens in air, got {ior}")
+
+
+class Mirror(eqx.Module):
+    """A reflecting caustic surface (polished metal, or a mirror-coated face) milled into
+    a blank.
+
+    **Arguments:**
+
+    - `thickness`: the blank's thickness (metres), from its flat back to the highest
+      point of the designed face; the relief is milled into it.
+    """
+
+    thickness: float = eqx.field(static=True)
+    kind: ClassVar[str] = "mirror"
+
+    def __init__(self, thickness):
+        self.thickness = _length(thickness, "thickness")
+
+
+Element = Lens | Mirror
 
 
 class Rectangle(eqx.Module):
@@ -136,22 +159,40 @@ class Polygon(eqx.Module):
 Outline = Rectangle | Ellipse | Polygon
 
 
+def _direction(value, name: str) -> tuple[float, float, float]:
+    v = check_real_array(value, name).astype(float)
+    if v.shape != (3,) or not np.all(np.isfinite(v)) or not np.linalg.norm(v) > 0:
+        raise ValueError(f"`{name}` must be a non-zero 3-vector, got {value!r}")
+    return tuple(float(c) for c in v / np.linalg.norm(v))  # type: ignore[return-value]
+
+
 class Screen(eqx.Module):
-    """The screen the caustic falls on, parallel to the element's bottom face.
+    """The screen the caustic falls on.
 
     **Arguments:**
 
-    - `distance`: from the element's bottom face down to the screen (metres).
-    - `extent`: ``(x_min, x_max, y_min, y_max)`` of the screen (metres); ``None``: the
-      flat element's footprint (the outline traced to the screen under the light).
+    - `distance`: metres from the element to the screen's centre: for a lens under the
+      default (horizontal) screen, from its bottom face straight down to the ground; for
+      a posed screen, along the beam's central ray (from where it leaves the lens's
+      bottom face, or from the mirror's centre).
+    - `extent`: ``(s_min, s_max, t_min, t_max)`` of the screen in its own frame
+      (metres; ``x, y`` for the horizontal screen); ``None``: the flat element's
+      footprint (the outline traced to the screen under the light).
+    - `normal`: ``None``: a lens's screen is horizontal, a mirror's faces the beam;
+      ``"beam"``: the screen faces the outgoing beam (its normal is the central ray,
+      reversed); a 3-vector: the normal of the screen's lit face (towards the element).
+    - `up`: the screen's up direction (made perpendicular to its normal; default
+      ``(0, 1, 0)``): the target's rows run along it.
 
     The pixel grid is the target's.
     """
 
     distance: float = eqx.field(static=True)
     extent: tuple[float, float, float, float] | None = eqx.field(static=True)
+    normal: str | tuple[float, float, float] | None = eqx.field(static=True)
+    up: tuple[float, float, float] = eqx.field(static=True)
 
-    def __init__(self, distance, extent=None):
+    def __init__(self, distance, extent=None, *, normal=None, up=(0.0, 1.0, 0.0)):
         self.distance = _length(distance, "screen_distance")
         if extent is not None:
             e = check_real_array(extent, "screen_extent").astype(float)
@@ -162,6 +203,15 @@ class Screen(eqx.Module):
                 )
             extent = tuple(float(v) for v in e)
         self.extent = extent
+        if isinstance(normal, str):
+            if normal != "beam":
+                raise ValueError(f"`normal` must be None, 'beam' or a 3-vector, got {normal!r}")
+        elif normal is not None:
+            normal = _direction(normal, "normal")
+        self.normal = normal
+        self.up = _direction(up, "up")
+        if isinstance(normal, tuple) and abs(float(np.dot(normal, self.up))) > 1 - 1e-9:
+            raise ValueError(f"`up` {up!r} is parallel to the screen's `normal`")
 
 
 class DesignProblem(eqx.Module):
@@ -169,10 +219,10 @@ class DesignProblem(eqx.Module):
 
     **Arguments:**
 
-    - `element`: a `Lens` (index, blank thickness).
+    - `element`: a `Lens` (index, blank thickness) or a `Mirror` (blank thickness).
     - `outline`: the blank's outline: a `Rectangle`, an `Ellipse`, a `Circle` or a
       `Polygon` (light outside it is stopped by the mount).
-    - `screen`: a `Screen` (its distance below the element, its extent).
+    - `screen`: a `Screen` (its distance from the element, its extent, its pose).
     - `light`: a `DirectionalLight` (any angle, travelling down) or a `PointLight` above
       the element; default: collimated, straight down.
 
@@ -180,14 +230,14 @@ class DesignProblem(eqx.Module):
     Rectangle(0.1, 0.1), Screen(distance=0.5))``.
     """
 
-    element: Lens
+    element: Element
     outline: Outline
     screen: Screen
     light: DirectionalLight | PointLight
 
     def __init__(self, element, outline, screen, light=None):
-        if not isinstance(element, Lens):
-            raise ValueError(f"`element` must be a Lens, got {type(element).__name__}")
+        if not isinstance(element, (Lens, Mirror)):
+            raise ValueError(f"`element` must be a Lens or a Mirror, got {type(element).__name__}")
         if not isinstance(outline, (Rectangle, Ellipse, Polygon)):
             raise ValueError(
                 f"`outline` must be a Rectangle, an Ellipse, a Circle or a Polygon, got "
@@ -202,7 +252,7 @@ class DesignProblem(eqx.Module):
                 f"`light` must be a DirectionalLight or a PointLight, got {type(light).__name__}"
             )
         if isinstance(light, PointLight):
-            top = screen.distance + element.thickness
+            top = screen.distance + element.thickness if isinstance(element, Lens) else 0.0
             height = float(np.asarray(light.position)[2])
             if not height > top:
                 raise ValueError(
@@ -213,8 +263,17 @@ class DesignProblem(eqx.Module):
 
     @property
     def top(self) -> float:
-        """Height of the element's top rest plane above the screen (metres)."""
+        """Height of the element's top rest plane (metres): a lens's above the ground, a
+        mirror's face rests on ``z = 0``."""
+        if isinstance(self.element, Mirror):
+            return 0.0
         return self.screen.distance + self.element.thickness
+
+    @property
+    def posed(self) -> bool:
+        """Whether the screen is placed by a pose (a mirror's always; a lens's when its
+        `Screen` has a `normal`), rather than the ground ``z = 0``."""
+        return isinstance(self.element, Mirror) or self.screen.normal is not None
 
 
 # ----------------------------------------------------------------- as JSON
@@ -243,16 +302,18 @@ def problem_to_dict(problem: DesignProblem) -> dict:
     return {
         "format": PROBLEM_FORMAT,
         "units": "metres",
-        "element": {
-            "kind": "lens",
-            "thickness": problem.element.thickness,
-            "ior": problem.element.ior,
-        },  # fmt: skip
+        "element": (
+            {"kind": "lens", "thickness": problem.element.thickness, "ior": problem.element.ior}
+            if isinstance(problem.element, Lens)
+            else {"kind": "mirror", "thickness": problem.element.thickness}
+        ),
         "outline": _outline_to_dict(problem.outline),
         "light": light_data,
         "screen": {
             "distance": screen.distance,
             "extent": None if screen.extent is None else list(screen.extent),
+            "normal": list(screen.normal) if isinstance(screen.normal, tuple) else screen.normal,
+            "up": list(screen.up),
         },
     }
 
@@ -265,8 +326,8 @@ def problem_from_dict(data) -> DesignProblem:
     try:
         element, outline = data["element"], data["outline"]
         light, screen = data["light"], data["screen"]
-        if element.get("kind") != "lens":
-            raise ValueError(f"`element` kind {element.get('kind')!r} is not 'lens'")
+        if element.get("kind") not in ("lens", "mirror"):
+            raise ValueError(f"`element` kind {element.get('kind')!r} is not 'lens' or 'mirror'")
         shapes = {"rectangle": Rectangle, "ellipse": Ellipse, "polygon": Polygon}
         if outline.get("kind") not in shapes:
             raise ValueError(f"`outline` kind {outline.get('kind')!r} is not one of {list(shapes)}")
@@ -281,11 +342,17 @@ def problem_from_dict(data) -> DesignProblem:
             built_light = PointLight(position, light.get("intensity", 1.0))
         else:
             raise ValueError(f"`light` kind {light.get('kind')!r} is not directional or point")
-        return DesignProblem(
-            Lens(element["thickness"], element["ior"]),
-            built_outline,
-            Screen(screen["distance"], screen.get("extent")),
-            built_light,
+        built_element = (
+            Lens(element["thickness"], element["ior"])
+            if element["kind"] == "lens"
+            else Mirror(element["thickness"])
         )
+        built_screen = Screen(
+            screen["distance"],
+            screen.get("extent"),
+            normal=screen.get("normal"),
+            up=screen.get("up", (0.0, 1.0, 0.0)),
+        )
+        return DesignProblem(built_element, built_outline, built_screen, built_light)
     except (KeyError, TypeError, AttributeError) as err:
         raise ValueError(f"`problem` description is incomplete or malformed: {err!r}") from err

@@ -175,26 +175,69 @@ def _landing_gain(problem: LensModel, sampling, shape, dx, dy, pixel) -> tuple[f
     return gains[0], gains[1]
 
 
+def transport_stretch(gain, setup: Setup, shape) -> float:
+    """How much the transport's grid is stretched along x (against y) so that the map it
+    finds is one the element can make.
+
+    An element moves a vertex's landing point by ``gain`` pixels per unit slope along
+    each axis (`_landing_gain`); in the transport's coordinates (the aperture and the
+    screen each scaled to the grid) the landing is then the identity plus ``(gx, gy)``
+    times the slope, with ``g = gain * side / target pixels`` (``side``: the aperture's
+    width or height). That is the gradient of a potential, as the optimal transport's
+    map is, only if ``gx = gy``: vertical light (any aspect) has it; leaning light, a
+    mirror's screen facing the reflected beam, do not (a mirror under 30 degrees:
+    ``gy / gx = cos^2 30``, and its landing fit stalled at 0.37 pixels RMS where vertical
+    light reaches 0.01, measured on the camera at 64^2). Transporting between both
+    densities stretched by ``sqrt(gy / gx)`` along x makes the map such a gradient.
+    Returns 1 within 1% of it (the grids are then the heights')."""
+    trows, tcols = setup.target_shape
+    gx = abs(gain[0]) * setup.width / tcols
+    gy = abs(gain[1]) * setup.height / trows
+    stretch = float(np.sqrt(gy / gx))
+    return 1.0 if abs(stretch - 1.0) < 0.01 else stretch
+
+
+def _stretched(shape, stretch: float) -> tuple[int, int]:
+    """The transport grid for `shape` stretched by `stretch` along x (never finer)."""
+    rows, cols = shape
+    if stretch < 1.0:
+        return rows, max(4, round(cols * stretch))
+    return max(4, round(rows / stretch)), cols
+
+
 def _transport_goal(
-    setup: Setup, shape, problem: LensModel, iterations: int, keep=None, smooth=False
+    setup: Setup,
+    shape,
+    problem: LensModel,
+    iterations: int,
+    keep=None,
+    smooth=False,
+    stretch: float = 1.0,
 ):
     """The landing points of the photon vertices: the optimal transport from the
     aperture's flux (times `keep` per cell, if given) to the target, on the heights
-    grid, in `iterations` at most; `smooth`: the map smoothed by a
-    [1, 2, 1] / 4 kernel along each axis (for a fit that reads it between its samples:
-    leaning light). Returns ``(goal_x, goal_y, transport)`` (metres; the
-    `TransportMap`)."""
+    grid (stretched along x by `stretch`: `transport_stretch`), in `iterations` at
+    most; `smooth`: the map smoothed by a [1, 2, 1] / 4 kernel along each axis (for a
+    fit that reads it between its samples: leaning light). Returns ``(goal_x, goal_y,
+    transport)`` (metres; the `TransportMap`)."""
 
-    top = setup.screen_distance + setup.thickness
-    source = _source_density(setup.light, setup.aperture, shape, top)
-    source = source * aperture_coverage(setup.problem.outline.lens_outline, setup.aperture, shape)
+    top = setup.top
+    grid = _stretched(shape, stretch)
+    source = _source_density(setup.light, setup.aperture, grid, top)
+    source = source * aperture_coverage(setup.problem.outline.lens_outline, setup.aperture, grid)
     if keep is not None:
-        source = source * keep
-    target = area_average(setup.goal, shape)
-    plan = transport_map(source, target, iterations=iterations, warn=False)
-    rows, cols = shape
-    h = 1.0 / max(rows, cols)
+        source = source * (keep if grid == tuple(shape) else area_average(keep, grid))
+    target = area_average(setup.goal, grid)
     sx0, sx1, sy0, sy1 = setup.screen
+    # a screen whose axis runs against the blank's (a mirror's) gets the target reversed
+    # along it, so that the map stays close to the flat element's
+    if setup.flips[0]:
+        target, (sx0, sx1) = target[:, ::-1], (sx1, sx0)
+    if setup.flips[1]:
+        target, (sy0, sy1) = target[::-1, :], (sy1, sy0)
+    plan = transport_map(source, target, iterations=iterations, warn=False)
+    rows, cols = grid
+    h = 1.0 / max(rows, cols)
     gx = sx0 + (sx1 - sx0) * plan.map_x / (cols * h)
     gy = sy0 + (sy1 - sy0) * plan.map_y / (rows * h)
     if smooth:  # the discrete Legendre transforms' one-cell staircase, read between cells
@@ -234,7 +277,7 @@ def _edge_bevel(setup: Setup, h: np.ndarray) -> tuple[np.ndarray, np.ndarray, in
     h = h - h.max()
     x0, x1, y0, y1 = setup.aperture
     dx, dy = (x1 - x0) / cols, (y1 - y0) / rows
-    top = setup.screen_distance + setup.thickness
+    top = setup.top
     xs = x0 + (np.arange(cols) + 0.5) * dx
     ys = y0 + (np.arange(rows) + 0.5) * dy
     j, i = np.arange(cols), np.arange(rows)
@@ -325,10 +368,6 @@ class TransportStart(eqx.Module):
         # light that leans out at the edges may need a bevel (`_edge_bevel`) and a second
         # transport; the first pass then only has to find the edges' heights: a short one
         leaning = not setup.vertical
-        rough = min(_ROUGH_PASS[0], self.iterations) if leaning else self.iterations
-        goal_x, goal_y, plan = _transport_goal(setup, shape, model, rough, smooth=leaning)
-        transport_s = time.perf_counter() - t0
-        transport_steps = plan.iterations
         rows, cols = shape
         dx, dy = setup.width / cols, setup.height / rows
         trows, tcols = setup.target_shape
@@ -337,11 +376,19 @@ class TransportStart(eqx.Module):
         pixel = jnp.asarray([(sx1 - sx0) / tcols, (sy1 - sy0) / trows], dtype)
         sampling = vertex_sampling(shape, setup.aperture, model.grid, setup.boundary)
         gain = _landing_gain(model, sampling, shape, dx, dy, pixel)
+        stretch = transport_stretch(gain, setup, shape)
+        t0 = time.perf_counter()
+        rough = min(_ROUGH_PASS[0], self.iterations) if leaning else self.iterations
+        goal_x, goal_y, plan = _transport_goal(
+            setup, shape, model, rough, smooth=leaning, stretch=stretch
+        )
+        transport_s = time.perf_counter() - t0
+        transport_steps = plan.iterations
         symbol = jnp.asarray(fit_symbol(shape, dx, dy, *gain), dtype)
         fit = _LandingFit(model, goal_x, goal_y, symbol, pixel, sampling)
         # converged: a step moves no vertex by more than 1/100 of a pixel (weak-lens
         # estimate)
-        atol = 0.01 * min(dx / gain[0], dy / gain[1])
+        atol = 0.01 * min(dx / abs(gain[0]), dy / abs(gain[1]))
         solver = optx.FixedPointIteration(rtol=0.0, atol=atol)
         if setup.initial is not None:
             initial = np.asarray(setup.initial, float)
@@ -362,7 +409,7 @@ class TransportStart(eqx.Module):
         if leaning:  # in full, without the band that the bevel takes, from these heights
             t1 = time.perf_counter()
             goal_x, goal_y, plan = _transport_goal(
-                setup, shape, model, self.iterations, keep, smooth=True
+                setup, shape, model, self.iterations, keep, smooth=True, stretch=stretch
             )
             transport_s += time.perf_counter() - t1
             transport_steps += plan.iterations
@@ -398,6 +445,7 @@ class TransportStart(eqx.Module):
                 "result": run.result,  # stalled: it has done what it can
                 "stalled": run.stalled,
                 "bevel_cells": bevel,
+                "stretch": stretch,
                 "seconds": seconds,
                 "first_step_seconds": compile_s,
             },

@@ -47,7 +47,10 @@ def is_multichannel(scene) -> bool:
     """Whether `scene`'s image has a channel axis: its index of refraction is a sequence
     (dispersion; a sequence of one too) and it refracts (a mirror's image does not depend
     on the index)."""
-    return isinstance(scene.ior, tuple) and getattr(scene, "material", "refractor") == "refractor"
+    return (
+        isinstance(getattr(scene, "ior", None), tuple)
+        and getattr(scene, "material", "refractor") == "refractor"
+    )
 
 
 def channels_last(scene, images: Array) -> Array:

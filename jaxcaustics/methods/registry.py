@@ -8,6 +8,7 @@ from typing import Any
 from .._checks import check_choice
 from ..scene.ellipsoid import EllipsoidScene
 from ..scene.mesh import MeshScene
+from ..scene.mirror import MirrorScene
 from ..scene.scene import LensScene, WaterScene
 from .base import Method
 from .caustic_map.method import AdaptiveCausticMap, CausticsMapping
@@ -24,6 +25,7 @@ METHODS: dict[str, type[Method]] = {
 DEFAULT_METHOD: dict[type, str] = {
     WaterScene: "twopass",
     LensScene: "triangles",
+    MirrorScene: "triangles",
     MeshScene: "triangles",
     EllipsoidScene: "spot_lights",
 }

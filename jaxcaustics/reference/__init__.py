@@ -104,6 +104,17 @@ glass of index ``n``.
   bottom face, loses the photon), refract glass -> air (normal ``(0, 0, 1)``,
   ``eta = n``; total internal reflection loses the photon), land on ``z = 0``.
 - Fresnel on: the photon carries the product of both faces' transmittances.
+- A screen pose (``scene.screen_pose``: centre ``c``, unit normal ``n`` of the lit face,
+  up ``u`` made perpendicular to ``n``): the ray leaving the bottom face lands where it
+  meets the plane through ``c`` if ``d.n < 0`` and the meeting lies ahead; the screen's
+  coordinates are ``s = (p - c).(u x n)``, ``t = (p - c).u`` and the receiver's extent
+  is read in them. Otherwise the screen is ``z = 0``.
+
+Mirror (`MirrorScene`): face ``z = H(x, y)`` about the rest plane ``z = 0``, the aperture
+and start points as for lenses on that plane, the first root along the whole line,
+reflection ``d - 2 (d.m) m`` about the face's unit normal ``m``, landing on the screen
+pose's plane as above; each photon carries the lens's flux density times
+``scene.reflectance``.
 
 Mesh (`MeshScene`): a generator mesh (triangles counter-clockwise seen from outside), a
 ``"refractor"`` of index ``n`` (each of ``scene.ior``) or a ``"mirror"``, and opaque
@@ -155,6 +166,7 @@ orthonormal ``rotation`` whose columns are its axes) of index ``n`` (each of
 from ._ellipsoid import trace_ellipsoid, trace_ellipsoid_rays
 from ._lens import emit_lens_photons, trace_lens, trace_lens_photons
 from ._mesh import emit_mesh_photons, intersect_mesh, trace_mesh, trace_mesh_photons
+from ._mirror import trace_mirror, trace_mirror_photons
 from ._optics import PHOTON_BYTES, chunk_photons
 from ._surface import surface_height
 from ._water import area_ratio_water, trace_photons, trace_water
@@ -173,6 +185,8 @@ __all__ = [
     "trace_lens_photons",
     "trace_mesh",
     "trace_mesh_photons",
+    "trace_mirror",
+    "trace_mirror_photons",
     "trace_photons",
     "trace_water",
 ]

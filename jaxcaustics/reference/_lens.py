@@ -31,6 +31,7 @@ from ._optics import (
     _check_count,
     _check_int,
     _check_points,
+    _Pose,
     _Receiver,
     _rng,
     chunk_photons,
@@ -173,6 +174,7 @@ class _Lens:
     # "rectangle", "ellipse" (the one inscribed in the extent) or a polygon's vertices in
     # the extent's frame normalised to [-1, 1]^2
     outline: str | tuple = "rectangle"
+    pose: _Pose | None = None  # the screen's pose; None: the ground z = 0
 
     @property
     def top(self) -> float:
@@ -208,6 +210,7 @@ def _read_lens(scene) -> _Lens:
         *_read_iors(ior),
         bool(fresnel),
         _read_outline(getattr(scene, "outline", "rectangle")),
+        _Pose.read(getattr(scene, "screen_pose", None)),
     )
     if lens.thickness + float(surf.heights.min()) <= 0.0:
         raise ValueError(
@@ -359,6 +362,27 @@ def _intersect_rays(
     return t_hit, gx_hit, gy_hit
 
 
+def _rays_to_surface(surf: _Surface, light: _Light, top: float, cx, cy):
+    """The light's rays through rest-plane points ``(cx, cy, top)`` and where they meet
+    the surface ``z = top + H``: unit directions ``w`` (3, N), the flux density (1, or
+    ``I |w_z| / r^2`` for a point light), the distance ``t`` along ``w`` from the rest
+    plane to the hit and the slopes ``(hx, hy)`` there."""
+    if light.is_point:
+        assert light.position is not None
+        w = np.stack([cx - light.position[0], cy - light.position[1]])
+        w = np.concatenate([w, np.full((1, cx.size), top - light.position[2])])
+        r2 = np.sum(w * w, axis=0)
+        w = w / np.sqrt(r2)
+        density = light.intensity * np.abs(w[2]) / r2
+        t, hx, hy = _intersect_rays(surf, w[0], w[1], w[2], cx, cy)
+    else:
+        assert light.direction is not None
+        w = np.repeat(light.direction[:, None], cx.size, axis=1)
+        density = np.ones(cx.size)
+        t, hx, hy = intersect_surface(surf, top, light.direction, cx, cy)
+    return w, density, t, hx, hy
+
+
 def _trace_lens(
     lens: _Lens, xs: np.ndarray, ys: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
@@ -379,19 +403,7 @@ def _trace_lens(
         if not sel.size:
             continue
         cx, cy = xs[sel], ys[sel]
-        if light.is_point:
-            assert light.position is not None
-            w = np.stack([cx - light.position[0], cy - light.position[1]])
-            w = np.concatenate([w, np.full((1, sel.size), top - light.position[2])])
-            r2 = np.sum(w * w, axis=0)
-            w = w / np.sqrt(r2)
-            density = light.intensity * np.abs(w[2]) / r2
-            t, hx, hy = _intersect_rays(surf, w[0], w[1], w[2], cx, cy)
-        else:
-            assert light.direction is not None
-            w = np.repeat(light.direction[:, None], sel.size, axis=1)
-            density = np.ones(sel.size)
-            t, hx, hy = intersect_surface(surf, top, light.direction, cx, cy)
+        w, density, t, hx, hy = _rays_to_surface(surf, light, top, cx, cy)
         p = np.stack([cx + t * w[0], cy + t * w[1], top + t * w[2]])
         normal = np.stack([-hx, -hy, np.ones_like(hx)]) / np.sqrt(1.0 + hx * hx + hy * hy)
         for k, ior in enumerate(lens.iors):
@@ -401,10 +413,15 @@ def _trace_lens(
                 bottom = p + np.where(down, (screen_distance - p[2]) / d1[2], 0.0) * d1
             d2, tr2, tir2 = _refract_rays(d1, up, ior, lens.fresnel)
             ok = down & ~tir2
-            with np.errstate(divide="ignore", invalid="ignore"):
-                s = np.where(ok, -screen_distance / d2[2], 0.0)
-            gx[k, sel] = np.where(ok, bottom[0] + s * d2[0], 0.0)
-            gy[k, sel] = np.where(ok, bottom[1] + s * d2[1], 0.0)
+            if lens.pose is None:
+                with np.errstate(divide="ignore", invalid="ignore"):
+                    s = np.where(ok, -screen_distance / d2[2], 0.0)
+                lx, ly = bottom[0] + s * d2[0], bottom[1] + s * d2[1]
+            else:  # (a ray that misses the screen's lit face counts as landed, off it)
+                lx, ly, reached = lens.pose.land(bottom, d2)
+                ok &= reached
+            gx[k, sel] = np.where(ok, lx, 0.0)
+            gy[k, sel] = np.where(ok, ly, 0.0)
             weight[k, sel] = np.where(ok, density * tr1 * tr2, 0.0)
             st = np.full(sel.size, LANDED, dtype=np.int8)
             st[~down] = NO_BOTTOM

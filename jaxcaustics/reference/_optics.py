@@ -196,3 +196,43 @@ class _Receiver:
         pix = row.astype(np.int64) * cols + col.astype(np.int64)
         flux = np.bincount(pix, np.where(inside, weight, 0.0), minlength=rows * cols)
         return flux, int(np.count_nonzero(inside))
+
+
+@dataclasses.dataclass(frozen=True)
+class _Pose:
+    """A screen's pose (`ScreenPose`) read into float64 unit vectors: the screen's
+    coordinates of ``p`` are ``s = (p - centre) . right``, ``t = (p - centre) . up``,
+    ``right = up x normal``."""
+
+    centre: np.ndarray
+    normal: np.ndarray
+    up: np.ndarray
+
+    @classmethod
+    def read(cls, pose) -> _Pose | None:
+        if pose is None:
+            return None
+        try:
+            values = [np.asarray(v, dtype=np.float64) for v in (pose.centre, pose.normal, pose.up)]
+        except AttributeError as err:
+            raise ValueError(f"`scene.screen_pose` needs centre, normal and up: {err}") from err
+        if any(v.shape != (3,) or not np.all(np.isfinite(v)) for v in values):
+            raise ValueError("`scene.screen_pose`: centre, normal and up must be 3 finite numbers")
+        centre, normal, up = values
+        normal = normal / np.linalg.norm(normal)
+        up = up - (up @ normal) * normal
+        norm = float(np.linalg.norm(up))
+        if not norm > 0.0:
+            raise ValueError("`scene.screen_pose.up` is parallel to its normal")
+        return cls(centre, normal, up / norm)
+
+    def land(self, p: np.ndarray, d: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Rays from points `p` (3, N) along `d` (3, N) on the screen's plane: ``(s, t,
+        reached)``; `reached` is false for rays that do not meet its lit face ahead."""
+        towards = self.normal @ d
+        with np.errstate(divide="ignore", invalid="ignore"):
+            run = (self.normal @ (self.centre[:, None] - p)) / towards
+        reached = (towards < 0.0) & (run > 0.0)
+        q = p + np.where(reached, run, 0.0) * d - self.centre[:, None]
+        right = np.cross(self.up, self.normal)
+        return right @ q, self.up @ q, reached

@@ -32,6 +32,7 @@ import numpy as np
 
 from .ellipsoid import Ellipsoid, EllipsoidScene, lowest_z
 from .mesh import Mesh, MeshScene
+from .mirror import MirrorScene
 from .scene import DirectionalLight, LensScene, PointLight, WaterScene
 
 # a rule: (where: the field the error is attached to, bad: a scalar bool, message)
@@ -174,6 +175,22 @@ def _ellipsoid_rules(scene: EllipsoidScene, xp) -> list[Rule]:
     return rules
 
 
+def _mirror_rules(scene: MirrorScene, xp) -> list[Rule]:
+    r = scene.reflectance
+    rules = [
+        (
+            lambda s: s.reflectance,
+            xp.logical_or(r <= 0, r > 1),
+            "`scene.reflectance` must be in (0, 1]",
+        )
+    ]
+    if isinstance(scene.light, PointLight):
+        top = xp.max(scene.surface.heights)
+        message = "`scene.light` must be above the mirror (position z > top of its face)"
+        rules.append((lambda s: s.light.position, scene.light.position[2] <= top, message))
+    return rules
+
+
 def _rules(scene, xp) -> list[Rule]:
     rules = _finite_rules(scene, xp)
     rules += _light_rules(scene.light, lambda s: s.light, "scene.light", xp)
@@ -182,13 +199,15 @@ def _rules(scene, xp) -> list[Rule]:
             scene.receiver.extent, lambda s: s.receiver.extent, "scene.receiver.extent", xp
         )
     )
-    if isinstance(scene, (WaterScene, LensScene)):
+    if isinstance(scene, (WaterScene, LensScene, MirrorScene)):
         extent = scene.surface.extent
         rules.append(_extent_rule(extent, lambda s: s.surface.extent, "scene.surface.extent", xp))
     if isinstance(scene, WaterScene):
         rules += _water_rules(scene, xp)
     elif isinstance(scene, LensScene):
         rules += _lens_rules(scene, xp)
+    elif isinstance(scene, MirrorScene):
+        rules += _mirror_rules(scene, xp)
     elif isinstance(scene, MeshScene):
         rules += _mesh_rules(scene, xp)
     elif isinstance(scene, EllipsoidScene):
@@ -205,7 +224,7 @@ def check_scene_values(scene):
     the compiled render raises (at run time) if it is broken. Returns the scene, with
     those checks attached (unchanged when every value is concrete).
     """
-    if not isinstance(scene, (WaterScene, LensScene, MeshScene, EllipsoidScene)):
+    if not isinstance(scene, (WaterScene, LensScene, MirrorScene, MeshScene, EllipsoidScene)):
         return scene
     if any(_is_traced(leaf) for leaf in jax.tree_util.tree_leaves(scene)):
         rules = _rules(scene, jnp)

@@ -400,6 +400,29 @@ def check_light(light) -> None:
         )
 
 
+def _check_lens_pose(pose, bottom):
+    """`pose` if it is None or a `ScreenPose` below the bottom face ``z = bottom`` with its
+    lit face up (the light leaves the lens going down)."""
+    from .screen_pose import ScreenPose  # (it builds on this module's checks)
+
+    if pose is None:
+        return None
+    if not isinstance(pose, ScreenPose):
+        raise ValueError(f"`screen_pose` must be a ScreenPose or None, got {type(pose).__name__}")
+    if is_concrete(pose.centre) and is_concrete(bottom):
+        if not float(pose.normal[2]) > 0.0:
+            raise ValueError(
+                "`screen_pose`: a lens's screen must face up, towards the lens (normal z > 0), "
+                f"got normal {np.asarray(pose.normal).tolist()}"
+            )
+        if not float(pose.centre[2]) < float(bottom):
+            raise ValueError(
+                f"`screen_pose`: the screen's centre (z = {float(pose.centre[2])}) must lie "
+                f"below the lens's bottom face (z = {float(bottom)})"
+            )
+    return pose
+
+
 class LensScene(eqx.Module):
     """A glass slab with a height-field top and a flat bottom over a screen: the scene of
     caustic lens design.
@@ -430,6 +453,11 @@ class LensScene(eqx.Module):
       ``"rectangle"`` (the aperture, default), ``"ellipse"`` (the ellipse inscribed in
       the aperture: a round lens in a round mount) or a star-shaped polygon's vertices
       in the aperture's normalised frame ``[-1, 1]^2``; light outside it is stopped.
+    - `screen_pose`: a `ScreenPose` (`jaxcaustics.scene.screen_pose`) to put the screen
+      anywhere below the bottom face (tilted to face a leaning beam, say); the
+      receiver's extent is then in the screen's own ``(s, t)`` frame, and
+      `screen_distance` only places the bottom face at ``z = screen_distance``.
+      ``None`` (default): the screen is the ground ``z = 0``.
     - `throw`: the old name of `screen_distance` (a `DeprecationWarning`).
 
     Images are irradiance relative to the irradiance the light gives a horizontal plane
@@ -444,6 +472,7 @@ class LensScene(eqx.Module):
     ior: float | tuple[float, ...] = eqx.field(static=True)
     fresnel: bool = eqx.field(static=True)
     outline: str | tuple = eqx.field(static=True)
+    screen_pose: Any = None  # a `ScreenPose` or None (the ground)
 
     def __init__(
         self,
@@ -456,6 +485,7 @@ class LensScene(eqx.Module):
         ior: float | Sequence[float] = 1.5,
         fresnel: bool = False,
         outline: str | Sequence = "rectangle",
+        screen_pose=None,
         throw=None,
     ):
         if not isinstance(surface, HeightField):
@@ -475,6 +505,7 @@ class LensScene(eqx.Module):
         self.ior = check_ior(ior)
         self.fresnel = check_bool(fresnel, "fresnel")
         self.outline = check_outline(outline)
+        self.screen_pose = _check_lens_pose(screen_pose, self.screen_distance)
         _check_surface_above(surface, self.thickness, "thickness", "dips through the bottom face")
         if isinstance(light, PointLight) and is_concrete(light.position):
             top = float(self.screen_distance) + float(self.thickness)

@@ -23,6 +23,7 @@ import jax.numpy as jnp
 from jaxtyping import Array, Bool, Float
 
 from ..scene.mesh import MeshScene
+from ..scene.mirror import MirrorScene
 from ..scene.outline import inside_outline
 from ..scene.scene import DirectionalLight, LensScene
 from ..scene.surface import ray_surface_hit
@@ -123,8 +124,12 @@ def _normalise(v):
     return tuple(c * inv for c in v)
 
 
-def _land(point, direction, valid):
-    """Carry rays to the screen ``z = 0``; rays going up are invalid."""
+def _land(point, direction, valid, pose=None):
+    """Carry rays to the screen: the ground ``z = 0`` (rays going up are invalid), or the
+    plane of a `ScreenPose` (positions in its ``(s, t)`` frame, 0 along its normal)."""
+    if pose is not None:
+        s, t, reached = pose.land(point, direction)
+        return (s, t, jnp.zeros_like(s)), valid & reached
     down = direction[2] < 0.0
     s = -point[2] / jnp.where(down, direction[2], -1.0)
     landed = (point[0] + s * direction[0], point[1] + s * direction[1], jnp.zeros_like(s))
@@ -133,6 +138,34 @@ def _land(point, direction, valid):
 
 def _stack(components):
     return jnp.stack(jnp.broadcast_arrays(*components), axis=-1)
+
+
+def _aperture_rays(scene, grid: tuple[int, int], band):
+    """The photon grid over a height-field element's aperture (a lens's top, a mirror's
+    face) on its rest plane ``z = scene.top``: the points ``(px, py)`` (rotated with the
+    surface), the rays' directions (a 3-tuple), their flux density (0 outside the
+    outline) and the grid's cell area."""
+    surface = scene.surface
+    dtype = surface.heights.dtype
+    x0, x1, y0, y1 = surface.extent
+    u, v, cell_area = corner_grid(x0, x1, y0, y1, grid, dtype, band)
+    # the grid turns with the surface about the extent's centre
+    cx, cy = 0.5 * (x0 + x1), 0.5 * (y0 + y1)
+    cos_r, sin_r = jnp.cos(surface.rotation), jnp.sin(surface.rotation)
+    px = cx + cos_r * (u - cx) - sin_r * (v - cy)
+    py = cy + sin_r * (u - cx) + cos_r * (v - cy)
+    if isinstance(scene.light, DirectionalLight):
+        d = tuple(c.astype(dtype) for c in scene.light.unit_direction)
+        density = jnp.ones_like(px)
+    else:
+        lp = scene.light.position.astype(dtype)
+        offset = (px - lp[0], py - lp[1], scene.top - lp[2])
+        r2 = sum(c * c for c in offset)
+        d = _normalise(offset)
+        density = scene.light.intensity * jnp.abs(d[2]) / r2
+    if scene.outline != "rectangle":  # the mount stops the light outside the outline
+        density = jnp.where(inside_outline(scene.outline, (x0, x1, y0, y1), u, v), density, 0.0)
+    return px, py, d, density, cell_area
 
 
 def lens_photons(
@@ -149,30 +182,14 @@ def lens_photons(
     `outline` carry no flux); each photon's line crosses that
     plane there and meets the top surface at the root found by `hit_iterations` Newton
     steps. It refracts into the glass, refracts out of the flat bottom (total internal
-    reflection there makes it invalid) and lands on the screen.
+    reflection there makes it invalid) and lands on the screen (the ground, or the
+    plane of `scene.screen_pose`: positions in its ``(s, t)`` frame).
     """
-    surface = scene.surface
-    dtype = surface.heights.dtype
-    x0, x1, y0, y1 = surface.extent
-    u, v, cell_area = corner_grid(x0, x1, y0, y1, grid, dtype, band)
-    # the grid turns with the surface about the extent's centre
-    cx, cy = 0.5 * (x0 + x1), 0.5 * (y0 + y1)
-    cos_r, sin_r = jnp.cos(surface.rotation), jnp.sin(surface.rotation)
-    px = cx + cos_r * (u - cx) - sin_r * (v - cy)
-    py = cy + sin_r * (u - cx) + cos_r * (v - cy)
-    top = scene.top
-    if isinstance(scene.light, DirectionalLight):
-        d = tuple(c.astype(dtype) for c in scene.light.unit_direction)
-        density = jnp.ones_like(px)
-    else:
-        lp = scene.light.position.astype(dtype)
-        offset = (px - lp[0], py - lp[1], top - lp[2])
-        r2 = sum(c * c for c in offset)
-        d = _normalise(offset)
-        density = scene.light.intensity * jnp.abs(d[2]) / r2
-    if scene.outline != "rectangle":  # the mount stops the light outside the outline
-        density = jnp.where(inside_outline(scene.outline, (x0, x1, y0, y1), u, v), density, 0.0)
-    hit_x, hit_y, hit_z, hx, hy = ray_surface_hit(surface, top, px, py, d, hit_iterations)
+    dtype = scene.surface.heights.dtype
+    px, py, d, density, cell_area = _aperture_rays(scene, grid, band)
+    hit_x, hit_y, hit_z, hx, hy = ray_surface_hit(
+        scene.surface, scene.top, px, py, d, hit_iterations
+    )
     normal = _normalise((-hx, -hy, jnp.ones_like(hx)))
     up = (jnp.zeros_like(hx), jnp.zeros_like(hx), jnp.ones_like(hx))
 
@@ -187,7 +204,7 @@ def lens_photons(
             jnp.broadcast_to(scene.screen_distance, s.shape),
         )
         out, tir, cos_out = refract_components(inside, up, ior)
-        landed, valid = _land(bottom, out, valid & ~tir)
+        landed, valid = _land(bottom, out, valid & ~tir, scene.screen_pose)
         flux = density
         if scene.fresnel:
             flux = (
@@ -201,6 +218,41 @@ def lens_photons(
         valids.append(valid)
     photons = _stack_channels(positions, directions, densities, valids, cell_area, dtype)
     return _clip_band(photons, grid, band)
+
+
+def reflect_components(d, normal):
+    """`d` reflected about the unit `normal` (3-tuples of arrays)."""
+    twice = 2.0 * sum(a * b for a, b in zip(d, normal, strict=True))
+    return tuple(a - twice * b for a, b in zip(d, normal, strict=True))
+
+
+def mirror_photons(
+    scene: MirrorScene, grid: tuple[int, int], hit_iterations: int = 3, band=None
+) -> Photons:
+    """Trace a ``rows x cols`` grid of photons off a `MirrorScene`: the grid over the
+    aperture on the face's rest plane as in `lens_photons` (`band` likewise), the hit
+    by `hit_iterations` Newton steps, the reflection about the face's normal, the
+    landing on the screen (positions in its ``(s, t)`` frame; rays that miss its lit
+    face are invalid). Flux densities carry the face's reflectance."""
+    dtype = scene.surface.heights.dtype
+    px, py, d, density, cell_area = _aperture_rays(scene, grid, band)
+    hit_x, hit_y, hit_z, hx, hy = ray_surface_hit(
+        scene.surface, scene.top, px, py, d, hit_iterations
+    )
+    normal = _normalise((-hx, -hy, jnp.ones_like(hx)))
+    out = reflect_components(d, normal)
+    facing = sum(a * b for a, b in zip(d, normal, strict=True)) < 0.0
+    landed, valid = _land((hit_x, hit_y, hit_z), out, facing, scene.screen_pose)
+    flux = jnp.where(valid, density * scene.reflectance.astype(dtype), 0.0)
+    photons = _stack_channels([_stack(landed)], [_stack(out)], [flux], [valid], cell_area, dtype)
+    return _clip_band(photons, grid, band)
+
+
+def element_photons(scene, grid: tuple[int, int], hit_iterations: int = 3, band=None):
+    """`lens_photons` or `mirror_photons`, by the scene's type."""
+    if isinstance(scene, MirrorScene):
+        return mirror_photons(scene, grid, hit_iterations, band)
+    return lens_photons(scene, grid, hit_iterations, band)
 
 
 def emission_frame(scene: MeshScene, dtype):

@@ -57,10 +57,11 @@ from ...reconstruct.raster import (
 )
 from ...scene.checks import checks_scene_values
 from ...scene.mesh import MeshScene
+from ...scene.mirror import MirrorScene
 from ...scene.scene import LensScene, PlaneReceiver
 from ...scene.surface import MAX_HIT_ITERATIONS
 from ...trace.intersect import search_bytes
-from ...trace.photons import Photons, lens_photons, mesh_photons
+from ...trace.photons import Photons, element_photons, mesh_photons
 from ..base import Method, channels_last
 from .distance_map import (
     build_distance_map,
@@ -76,6 +77,8 @@ MAX_TIERS = 3  # windows of an "auto" render (`_size_tiers`)
 # numbers per receiver pixel and channel besides the photons: the image being summed,
 # one batch's image, its scatter and the result
 _IMAGE_FLOATS = 4
+# the height-field caustic elements (one photon grid over the aperture)
+_ELEMENTS = (LensScene, MirrorScene)
 
 
 class TrianglesResult(eqx.Module):
@@ -445,8 +448,8 @@ def splat_photons(photons: Photons, receiver: PlaneReceiver, sigma, window: int 
 
 @eqx.filter_jit
 def _trace_photons(scene, grid: tuple[int, int], hit_iterations: int, batch_size: int):
-    if isinstance(scene, LensScene):
-        return lens_photons(scene, grid, hit_iterations)
+    if isinstance(scene, _ELEMENTS):
+        return element_photons(scene, grid, hit_iterations)
     return mesh_photons(scene, grid, batch_size)
 
 
@@ -470,7 +473,7 @@ def trace_photons(
     hit_iterations = check_int(hit_iterations, "hit_iterations", 0, MAX_HIT_ITERATIONS)
     batch_size = check_int(batch_size, "batch_size", 1)
     memory_limit = check_memory_limit(memory_limit)
-    if isinstance(scene, LensScene):
+    if isinstance(scene, _ELEMENTS):
         _refuse_unused("batch_size", batch_size, 4096, "mesh scenes")
     else:
         _refuse_unused("hit_iterations", hit_iterations, 3, "lens scenes")
@@ -486,14 +489,16 @@ def trace_photons(
 
 
 def _check_scene(scene) -> None:
-    if not isinstance(scene, (LensScene, MeshScene)):
-        raise ValueError(f"`scene` must be a LensScene or a MeshScene, got {type(scene).__name__}")
+    if not isinstance(scene, (*_ELEMENTS, MeshScene)):
+        raise ValueError(
+            f"`scene` must be a LensScene, a MirrorScene or a MeshScene, got {type(scene).__name__}"
+        )
 
 
 def _sizes(scene) -> tuple[int, np.dtype, int]:
     """Channels, dtype and (mesh scenes) generator faces of a lens or mesh scene."""
-    if isinstance(scene, LensScene):
-        return len(scene.iors), np.dtype(scene.surface.heights.dtype), 0
+    if isinstance(scene, _ELEMENTS):
+        return len(getattr(scene, "iors", (1,))), np.dtype(scene.surface.heights.dtype), 0
     faces = int(scene.generator.faces.shape[0])
     return len(scene.iors), np.dtype(scene.generator.vertices.dtype), faces
 
@@ -676,8 +681,8 @@ class _BandConfig(eqx.Module):
         """The photons of band `k` (photon rows ``k (rows - 1) - halo`` on, ``rows + 2
         halo`` of them)."""
         band = (k * (self.rows - 1) - halo, self.rows + 2 * halo)
-        if isinstance(scene, LensScene):
-            return lens_photons(scene, self.grid, self.hit_iterations, band)
+        if isinstance(scene, _ELEMENTS):
+            return element_photons(scene, self.grid, self.hit_iterations, band)
         return mesh_photons(scene, self.grid, self.ray_batch, band=band)
 
     def drawn(self, halo: int):
@@ -754,7 +759,7 @@ class CausticTriangles(Method):
     name: ClassVar[str] = "triangles"
     resolution_knobs: ClassVar[tuple[str, ...]] = ("photons",)
     estimate_is_reliable: ClassVar[bool] = True
-    scene_types: ClassVar[tuple[type, ...]] = (LensScene, MeshScene)
+    scene_types: ClassVar[tuple[type, ...]] = (LensScene, MirrorScene, MeshScene)
 
     def needs_sizing(self) -> bool:
         return _is_auto(self.window) and self.visibility == "exact"
@@ -793,7 +798,7 @@ class CausticTriangles(Method):
 
 @checks_scene_values
 def caustic_triangles(
-    scene: LensScene | MeshScene,
+    scene: LensScene | MirrorScene | MeshScene,
     *,
     photons: int | tuple[int, int] = CausticTriangles.photons,
     reconstruction: Literal["exact", "gouraud"] = CausticTriangles.reconstruction,
@@ -811,7 +816,7 @@ def caustic_triangles(
 
     **Arguments:**
 
-    - `scene`: a `LensScene` or a `MeshScene`.
+    - `scene`: a `LensScene`, a `MirrorScene` or a `MeshScene`.
     - `photons`: the photon grid, ``n`` (``n x n``) or ``(rows, cols)`` photons
       (vertices of the grid); ``2 (rows - 1) (cols - 1)`` triangles.
     - `reconstruction`: ``"exact"`` (flux-conserving, exact overlap areas) or
@@ -895,7 +900,7 @@ def caustic_triangles(
     if cube_map is not None and not isinstance(cube_map, CubeMapOptions):
         raise ValueError(f"`cube_map` must be a CubeMapOptions, got {type(cube_map).__name__}")
     # knobs where they do not apply: refused by name unless at their defaults
-    if isinstance(scene, LensScene):
+    if isinstance(scene, _ELEMENTS):
         _refuse_unused("batch_size", batch_size, None, "mesh scenes")
     else:
         _refuse_unused("hit_iterations", hit_iterations, 3, "lens scenes")
