@@ -30,13 +30,16 @@ from ..inverse.problem import (
     Circle,
     DesignProblem,
     Ellipse,
+    Mirror,
     Polygon,
     Rectangle,
+    Screen,
     problem_to_dict,
 )
 from ..inverse.solvers import SOLVER_NAMES
-from ..inverse.verify import verify_lens
+from ..inverse.verify import verify_heights, verify_lens
 from ..io.images import read_image, write_exr, write_png
+from ..scene.mirror import MirrorScene
 from ..scene.scene import DirectionalLight
 from .flags import (
     MAX_PIXELS,
@@ -119,6 +122,20 @@ def add_design(subparsers) -> None:
     )
     design.add_argument(
         "--ior", type=number(1.0, strict=True), default=1.5, help="index of refraction (1.5)"
+    )
+    design.add_argument(
+        "--element",
+        choices=("lens", "mirror"),
+        default="lens",
+        help="lens (refracting; default) or mirror (reflecting: the light must lean, "
+        "--zenith, and the screen faces the reflected beam, --screen-distance from the mirror)",
+    )
+    design.add_argument(
+        "--screen-normal",
+        choices=("ground", "beam"),
+        default=None,
+        help="ground: the screen lies flat under the lens (a lens's default); beam: it faces "
+        "the outgoing beam (a mirror's only choice)",
     )
     design.add_argument(
         "--outline",
@@ -227,6 +244,20 @@ def _write_json(path: Path, data: dict) -> None:
     os.replace(tmp, path)
 
 
+def _on_the_ground(scene) -> bool:
+    """A lens over the ground screen (the exported solid can be traced there)."""
+    return not isinstance(scene, MirrorScene) and scene.screen_pose is None
+
+
+def _screen(args: argparse.Namespace, screen: Screen) -> Screen:
+    """`--screen-normal` on the screen (`--element mirror` allows only the beam)."""
+    if args.element == "mirror" and args.screen_normal == "ground":
+        raise ValueError("`--screen-normal` ground: a mirror's screen faces the reflected beam")
+    if args.screen_normal == "beam" or args.element == "mirror":
+        return Screen(screen.distance, screen.extent, normal="beam")
+    return screen
+
+
 def _outline(spec: str, width: float, height: float):
     """`--outline`: a name, or a file of polygon vertices scaled to `width`."""
     if spec == "rectangle":
@@ -306,7 +337,12 @@ def run_design(args: argparse.Namespace) -> int:
         solver=args.solver,
         light=DirectionalLight.from_angles(args.zenith, args.azimuth),
     )
-    problem = DesignProblem(problem.element, outline, problem.screen, problem.light)
+    problem = DesignProblem(
+        Mirror(args.thickness) if args.element == "mirror" else problem.element,
+        outline,
+        _screen(args, problem.screen),
+        problem.light,
+    )
     losses: list[float] = []
 
     def step_done(info):
@@ -331,7 +367,14 @@ def run_design(args: argparse.Namespace) -> int:
         return 130
     seconds = time.perf_counter() - began
 
-    paths = export_lens(design.scene, out, tool_radius_mm=args.tool_radius * 1000)
+    # a mirror's blank: its face milled into the top of a block `--thickness` thick
+    mirror = isinstance(design.scene, MirrorScene)
+    paths = export_lens(
+        design.scene,
+        out,
+        thickness=args.thickness if mirror else None,
+        tool_radius_mm=args.tool_radius * 1000,
+    )
     write_png(out / "predicted.png", design.predicted)
     write_png(out / "target.png", target)
     _loss_plot(losses, out / "loss.png")
@@ -352,7 +395,12 @@ def run_design(args: argparse.Namespace) -> int:
         "relief_mm": 1000 * design.relief,
         "files": {k: str(v) for k, v in paths.items()},
     }
-    if args.verify:
+    if args.verify and not _on_the_ground(design.scene):
+        photons = 8 * max(design.target.shape)
+        error, _ = verify_heights(design.scene, design.target, photons_per_axis=photons)
+        print(f"verification: the heights traced by the reference miss the target by {error:.4f}")
+        summary["verification"] = {"heights": error}
+    elif args.verify:
         photons = 8 * max(design.target.shape)  # 64 photons per pixel on average
         report = verify_lens(design.scene, design.target, photons_per_axis=photons)
         print(report)

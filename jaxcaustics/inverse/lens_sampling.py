@@ -12,6 +12,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from .._checks import check_shape
+from ..scene.mirror import MirrorScene
 from ..scene.scene import HeightField, LensScene
 from ..scene.surface import height_and_gradient
 
@@ -50,14 +51,17 @@ def _lens(scene_or_surface, thickness) -> tuple[HeightField, float]:
                 f"got {thickness!r}"
             )
         surface, t = scene_or_surface.surface, float(scene_or_surface.thickness)
-    elif isinstance(scene_or_surface, HeightField):
+    elif isinstance(scene_or_surface, (HeightField, MirrorScene)):
         if thickness is None:
-            raise ValueError("`thickness` (metres) is required with a HeightField")
-        surface = scene_or_surface
+            raise ValueError(
+                "`thickness` (metres: the blank's) is required with a HeightField or a "
+                "MirrorScene"
+            )
+        surface = getattr(scene_or_surface, "surface", scene_or_surface)
         t = _check_number(thickness, "thickness", low=0.0, low_inclusive=False)
     else:
         raise ValueError(
-            "`scene_or_surface` must be a LensScene or a HeightField, "
+            "`scene_or_surface` must be a LensScene, a MirrorScene or a HeightField, "
             f"got {type(scene_or_surface).__name__}"
         )
     heights = np.asarray(surface.heights)
@@ -147,4 +151,6 @@ def lens_height_map(scene_or_surface, thickness=None, *, samples=None) -> np.nda
 
 
 def _outline(scene_or_surface) -> str:
-    return scene_or_surface.outline if isinstance(scene_or_surface, LensScene) else "rectangle"
+    if isinstance(scene_or_surface, (LensScene, MirrorScene)):
+        return scene_or_surface.outline
+    return "rectangle"

@@ -301,6 +301,12 @@ def _edge_bevel(setup: Setup, h: np.ndarray) -> tuple[np.ndarray, np.ndarray, in
         ring = float(np.max(-inwards[:, 0] * lean))
         if ring <= 0.1 * cell:
             continue
+        if setup.is_mirror:  # no bevel: the ray passes the edge and misses the mirror
+            width = -inwards[:, 0] * lean / cell  # the band, in cells
+            width = width[:, None] if axis == 0 else width[None, :]
+            keep = np.minimum(keep, np.clip(distance + 1.0 - width, 0.0, 1.0))
+            widest = max(widest, int(np.ceil(ring / cell)))
+            continue
         k = int(np.ceil(ring / cell)) + 1
         most = len(inwards[0]) // 4  # wider, a bevel would take most of the light
         if k > most:

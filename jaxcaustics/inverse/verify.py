@@ -18,6 +18,7 @@ import numpy as np
 from .. import reference
 from .._checks import check_int, check_real_array
 from ..scene.mesh import Mesh, MeshScene
+from ..scene.mirror import MirrorScene
 from ..scene.scene import DirectionalLight, LensScene, PlaneReceiver
 from .export import lens_solid
 from .lens_setup import check_mask
@@ -123,6 +124,24 @@ class Verification:
         )
 
 
+def verify_heights(scene, target, *, mask=None, photons_per_axis: int = 512) -> tuple:
+    """The designed surface of a `MirrorScene`, or of a `LensScene` with a posed screen,
+    traced by the NumPy reference (`trace_mirror`, `trace_lens`) and compared with
+    `target` ``(rows, cols)`` on its receiver: ``(relative L2 at unit means, image)``.
+    The heights are what the workshop mills (the exported solid samples them)."""
+    if not isinstance(scene, (LensScene, MirrorScene)):
+        raise ValueError(
+            f"`scene` must be a LensScene or a MirrorScene, got {type(scene).__name__}"
+        )
+    target = _image(target, "target", scene.receiver.shape)
+    if not target.max() > 0:
+        raise ValueError("`target` must be finite, non-negative and not all zero")
+    check_int(photons_per_axis, "photons_per_axis", 2, MAX_PHOTONS_PER_AXIS)
+    trace = reference.trace_mirror if isinstance(scene, MirrorScene) else reference.trace_lens
+    image = trace(scene, photons_per_axis)
+    return relative_l2(image, target, mask), image
+
+
 def verify_lens(
     scene: LensScene,
     target,
@@ -153,6 +172,11 @@ def verify_lens(
 
     if not isinstance(scene, LensScene):
         raise ValueError(f"`scene` must be a LensScene, got {type(scene).__name__}")
+    if scene.screen_pose is not None:
+        raise ValueError(
+            "`scene` has a posed screen: the solid is traced onto the ground only; judge "
+            "its heights with `verify_heights`"
+        )
     # checked before any tracing: a NaN target made every error NaN, sun_samples=0 a
     # ZeroDivisionError after the nominal trace
     target = _image(target, "target", scene.receiver.shape)  # the screen's

@@ -111,8 +111,8 @@ glass of index ``n``.
   is read in them. Otherwise the screen is ``z = 0``.
 
 Mirror (`MirrorScene`): face ``z = H(x, y)`` about the rest plane ``z = 0``, the aperture
-and start points as for lenses on that plane, the first root along the whole line,
-reflection ``d - 2 (d.m) m`` about the face's unit normal ``m``, landing on the screen
+and start points as for lenses on that plane, the first root along the whole line (a hit
+outside the extent or the outline misses the blank: lost), reflection ``d - 2 (d.m) m`` about the face's unit normal ``m``, landing on the screen
 pose's plane as above; each photon carries the lens's flux density times
 ``scene.reflectance``.
 

@@ -4,7 +4,10 @@ The mirror's face is ``z = H(x, y)`` about its rest plane ``z = 0`` (the bicubic
 `_surface.py`, rotation included). A photon belongs to the mirror iff its line crosses
 the rest plane inside the (rotated) extent, half-open, and inside the outline (as for
 lenses, `_lens._in_aperture`). It meets the face at the first root along its whole line
-(the lens's safe march and Newton), reflects about the face's normal
+(the lens's safe march and Newton); a hit outside the extent or the outline misses the
+blank (the ray leans out past an edge lying below the rest plane: lost). Light that
+comes in over a low edge from outside the aperture is not traced (a band ``|H(edge)|
+tan(lean)`` wide along that edge). It reflects about the face's normal
 (``d - 2 (d . n) n``), and lands on the screen's plane (``scene.screen_pose``: its
 ``(s, t)`` frame) if it reaches the screen's lit face ahead of it. Each photon carries its
 rest-plane cell's area times 1 (directional light) or ``I |w_z| / r^2`` (point light),
@@ -95,7 +98,8 @@ def _trace_mirror(mirror: _Mirror, xs: np.ndarray, ys: np.ndarray):
         cos_i = np.sum(w * normal, axis=0)
         out = w - 2.0 * cos_i * normal
         s, t_, ok = mirror.pose.land(p, out)
-        ok &= cos_i < 0.0
+        # a hit beyond the blank's edge misses the mirror
+        ok &= (cos_i < 0.0) & _in_aperture(mirror.surface, p[0], p[1], mirror.outline)
         gs[sel], gt[sel] = np.where(ok, s, 0.0), np.where(ok, t_, 0.0)
         weight[sel] = np.where(ok, density * mirror.reflectance, 0.0)
         reached[sel] = ok

@@ -232,8 +232,11 @@ def mirror_photons(
     """Trace a ``rows x cols`` grid of photons off a `MirrorScene`: the grid over the
     aperture on the face's rest plane as in `lens_photons` (`band` likewise), the hit
     by `hit_iterations` Newton steps, the reflection about the face's normal, the
-    landing on the screen (positions in its ``(s, t)`` frame; rays that miss its lit
-    face are invalid). Flux densities carry the face's reflectance."""
+    landing on the screen (positions in its ``(s, t)`` frame). A photon whose hit lies
+    beyond the blank's edge (its line crosses the rest plane inside the aperture, but
+    the face there lies lower and the ray passes the edge: the light leaning out over
+    a low edge) misses the mirror, and one that misses the screen's lit face is lost:
+    both are invalid. Flux densities carry the face's reflectance."""
     dtype = scene.surface.heights.dtype
     px, py, d, density, cell_area = _aperture_rays(scene, grid, band)
     hit_x, hit_y, hit_z, hx, hy = ray_surface_hit(
@@ -242,7 +245,15 @@ def mirror_photons(
     normal = _normalise((-hx, -hy, jnp.ones_like(hx)))
     out = reflect_components(d, normal)
     facing = sum(a * b for a, b in zip(d, normal, strict=True)) < 0.0
-    landed, valid = _land((hit_x, hit_y, hit_z), out, facing, scene.screen_pose)
+    # a ray whose hit lies beyond the blank's edge misses the mirror (lost)
+    surface = scene.surface
+    x0, x1, y0, y1 = surface.extent
+    cx, cy = 0.5 * (x0 + x1), 0.5 * (y0 + y1)
+    cos_r, sin_r = jnp.cos(surface.rotation), jnp.sin(surface.rotation)
+    hit_u = cx + cos_r * (hit_x - cx) + sin_r * (hit_y - cy)
+    hit_v = cy - sin_r * (hit_x - cx) + cos_r * (hit_y - cy)
+    on_face = inside_outline(scene.outline, (x0, x1, y0, y1), hit_u, hit_v)
+    landed, valid = _land((hit_x, hit_y, hit_z), out, facing & on_face, scene.screen_pose)
     flux = jnp.where(valid, density * scene.reflectance.astype(dtype), 0.0)
     photons = _stack_channels([_stack(landed)], [_stack(out)], [flux], [valid], cell_area, dtype)
     return _clip_band(photons, grid, band)
