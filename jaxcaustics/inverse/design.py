@@ -33,14 +33,14 @@ import optimistix as optx
 
 from .._checks import check_bool, check_real_array, is_distance, renamed_keyword
 from .._warnings import warn_user
-from ..methods.triangles.method import trace_photons, triangle_window, triangles_image
 from ..scene.scene import DirectionalLight, LensScene, PointLight
 from .checkpoint import check_checkpoint
 from .design_rounds import solve_in_rounds
 from .design_setup import Setup
 from .image_refine import ImageRefinement
-from .lens_setup import predict_photons_default, prepare
+from .lens_setup import prepare
 from .poisson_levels import PoissonLevels, check_levels
+from .prediction import predict_caustic, relative_l2
 from .problem import DesignProblem, Lens, Rectangle, Screen, _length
 from .solvers import SolverLike
 from .transport_start import TransportStart
@@ -461,9 +461,6 @@ def lens_problem(
     return problem, transport, finish
 
 
-_PREDICT_WINDOW = 16  # pixels: the prediction's largest triangle window
-
-
 def _finish(setup: Setup, h, history, level_reports, result, t_start: float) -> LensDesign:
     """Fold the relief if asked, check the blank, predict the caustic: the `LensDesign`."""
     thickness, timings = setup.thickness, dict(setup.timings)
@@ -475,23 +472,12 @@ def _finish(setup: Setup, h, history, level_reports, result, t_start: float) -> 
             f"{h.max() - h.min():.4g} m, so the surface dips through the bottom face"
         )
         raise ValueError(msg)
-    final = setup.element_scene(h)
     t0 = time.perf_counter()
-
-    n_pred = setup.predict_photons or predict_photons_default(setup.target_shape)
-    # the window that holds 99.9% of the flux, at most _PREDICT_WINDOW pixels: the few
-    # triangles stretched across a dark gap would otherwise size it (32 pixels: 4x the
-    # time of 16 for 0.26% of the image, measured on a design for a dozen dots)
-    photons = trace_photons(final, (n_pred, n_pred))
-    window = min(_PREDICT_WINDOW, triangle_window(photons, final.receiver))
-    # drawn from these photons (`caustic_triangles` would trace them again: 4.5 s against
-    # 2.5 s at 513^2, compilation included, the same image to 1e-7)
-    images, missed = triangles_image(photons, final.receiver, window=window)
-    predicted, missed = np.asarray(images[0]), float(missed[0])
+    predicted, missed, window, final = predict_caustic(setup, h)
     timings["predict"] = time.perf_counter() - t0
     timings["total"] = time.perf_counter() - t_start
     target = setup.goal * setup.flux_scale
-    error = _relative_l2(predicted, target)
+    error = relative_l2(predicted, target)
     dark = target < 0.05 * target.mean()
     dark_flux = float(predicted[dark].sum() / max(predicted.sum(), 1e-300))
     notes = _design_warnings(setup, level_reports, error, dark_flux)
@@ -523,13 +509,6 @@ def _finish(setup: Setup, h, history, level_reports, result, t_start: float) -> 
         warnings=notes,
         problem=setup.problem,
     )
-
-
-def _relative_l2(image: np.ndarray, target: np.ndarray) -> float:
-    """``|a - b| / |b|`` of the two images scaled to unit mean."""
-    a = image / image.mean() if image.mean() > 0 else image
-    b = target / target.mean()
-    return float(np.linalg.norm(a - b) / np.linalg.norm(b))
 
 
 def _stopped(report: dict) -> bool:

@@ -1,7 +1,7 @@
-"""A design as rounds (`solve_in_rounds`): each Poisson level, or the transport start,
-then the finish, one round each, checkpointed after every round
-(`jaxcaustics.inverse.checkpoint.run_rounds`), so that an interrupted design resumes
-where it stopped and ends where an uninterrupted one does.
+"""A design as rounds (`solve_in_rounds`): each Poisson level, or the transport start and
+its target corrections (`prediction.py`), then the finish, one round each, checkpointed
+after every round (`jaxcaustics.inverse.checkpoint.run_rounds`), so that an interrupted
+design resumes where it stopped and ends where an uninterrupted one does.
 
 A checkpoint holds every round's heights and a fingerprint of what the design was made
 from (the target as used, the problem, the strategies, the options that change the
@@ -10,8 +10,10 @@ result); resuming a checkpoint of another design is refused, naming the file.
 
 from __future__ import annotations
 
+import dataclasses
 import hashlib
 import os
+import time
 from pathlib import Path
 
 import jax
@@ -21,6 +23,7 @@ import optimistix as optx
 from .checkpoint import load_checkpoint, run_rounds
 from .design_setup import Setup
 from .poisson_levels import PoissonLevels
+from .prediction import corrected_goal, predict_caustic, relative_l2
 
 
 def _fingerprint(setup: Setup) -> np.ndarray:
@@ -43,9 +46,18 @@ def _fingerprint(setup: Setup) -> np.ndarray:
     return np.frombuffer(digest.digest(), np.uint32).copy()
 
 
+def _corrections(setup: Setup) -> int:
+    """Rounds of target correction after the transport start (none after the levels)."""
+    start = setup.start
+    return 0 if isinstance(start, PoissonLevels) else start.correction_rounds(setup)
+
+
 def _round_shapes(setup: Setup) -> list[tuple[int, int]]:
     """The heights grid each round ends on."""
-    shapes = list(setup.shapes) if isinstance(setup.start, PoissonLevels) else [setup.shapes[-1]]
+    if isinstance(setup.start, PoissonLevels):
+        shapes = list(setup.shapes)
+    else:
+        shapes = [setup.shapes[-1]] * (1 + _corrections(setup))
     return shapes + ([setup.shapes[-1]] if setup.finish is not None else [])
 
 
@@ -67,6 +79,7 @@ def solve_in_rounds(
     shapes = _round_shapes(setup)
     state = {
         "heights": tuple(np.zeros(s) for s in shapes),
+        "goal": np.asarray(setup.goal, float),  # the target the last solve aimed at
         "fingerprint": _fingerprint(setup),
     }
     if resume and checkpoint is not None and Path(checkpoint).is_file():
@@ -112,6 +125,31 @@ def solve_in_rounds(
         results.append(result)
         return store(state, 0, h)
 
+    def correct(k):
+        def run(state):
+            t0 = time.perf_counter()
+            h = state["heights"][k - 1]
+            predicted = predict_caustic(setup, h)[0]
+            goal = corrected_goal(state["goal"], setup.goal, predicted)
+            again = dataclasses.replace(setup, goal=goal, initial=h)
+            reports.append(
+                {
+                    "stage": "target correction",
+                    "shape": tuple(h.shape),
+                    "steps": 1,
+                    "loss": relative_l2(predicted, setup.goal),  # before it
+                    "result": optx.RESULTS.successful,
+                    "seconds": time.perf_counter() - t0,
+                    "first_step_seconds": float("nan"),
+                }
+            )
+            h, stage_reports, result = start.solve(again, history, step_done)
+            reports.extend(stage_reports)
+            results.append(result)
+            return {**store(state, k, h), "goal": goal}
+
+        return run
+
     def refine(state):
         h, report = finish.refine(setup, state["heights"][-2], history, step_done)
         if report is not None:  # None: nothing to refine
@@ -121,7 +159,7 @@ def solve_in_rounds(
     if isinstance(start, PoissonLevels):
         rounds = [level(k) for k in range(len(setup.shapes))]
     else:
-        rounds = [transport]
+        rounds = [transport] + [correct(k) for k in range(1, 1 + _corrections(setup))]
     if finish is not None:
         rounds.append(refine)
 

@@ -54,8 +54,7 @@ def _lens(scene_or_surface, thickness) -> tuple[HeightField, float]:
     elif isinstance(scene_or_surface, (HeightField, MirrorScene)):
         if thickness is None:
             raise ValueError(
-                "`thickness` (metres: the blank's) is required with a HeightField or a "
-                "MirrorScene"
+                "`thickness` (metres: the blank's) is required with a HeightField or a MirrorScene"
             )
         surface = getattr(scene_or_surface, "surface", scene_or_surface)
         t = _check_number(thickness, "thickness", low=0.0, low_inclusive=False)

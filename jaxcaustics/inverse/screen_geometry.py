@@ -166,3 +166,17 @@ def check_beam_clear(problem: DesignProblem, pose: ScreenPose, extent) -> None:
             "`screen` stands in the light on its way to the element (it would shade it): "
             "move it further along the outgoing beam, or lean the light more"
         )
+
+
+def flat_landing(problem: DesignProblem, pose: ScreenPose | None, px, py):
+    """Where the flat element sends the light through rest-plane points ``(px, py)``,
+    in the screen's frame (``x, y`` of the ground under a lens without a pose), and the
+    light's flux density there: ``(s, t, density)``."""
+    px, py = np.asarray(px, float), np.asarray(py, float)
+    d, density = _rays_in(problem, px, py)
+    points, out = _leave(problem, px, py, d)
+    if pose is None:  # the ground z = 0
+        run = -points[..., 2] / out[..., 2]
+        return points[..., 0] + run * out[..., 0], points[..., 1] + run * out[..., 1], density
+    s, t, _ = _land(pose, points, out)
+    return s, t, density

@@ -34,7 +34,8 @@ pixel); a 128^2 one 2 to 4 s. Entropic transport was not measured here: the reas
 against it above are from its method, not a run.
 
 Coordinates: cell ``(i, j)``'s centre is ``((j + 0.5) h, (i + 0.5) h)`` with
-``h = 1 / max(rows, cols)``: the grid covers ``[0, cols h] x [0, rows h]``.
+``h = 1 / max(rows, cols)``: the grid covers ``[0, cols h] x [0, rows h]`` (with
+`stretch`, x runs over ``[0, stretch cols h]``).
 """
 
 from __future__ import annotations
@@ -97,20 +98,22 @@ def _legendre_1d(f: jax.Array, x: jax.Array, s: jax.Array, batch: int) -> jax.Ar
     return jax.lax.map(lambda row: jnp.max(sx - row[None, :], axis=1), f, batch_size=batch)
 
 
-def legendre(f: jax.Array, h, ghost: int = 0) -> jax.Array:
+def legendre(f: jax.Array, h, ghost: int = 0, hy=None) -> jax.Array:
     """Discrete Legendre transform ``f*(s) = max_x (s . x - f(x))`` of `f` given at the
-    cell centres of its ``(rows, cols)`` grid, evaluated at the centres of the same grid
-    grown by `ghost` cells on every side: ``(rows + 2 ghost, cols + 2 ghost)``."""
+    cell centres of its ``(rows, cols)`` grid (cells `h` wide, `hy` high: `h` if None),
+    evaluated at the centres of the same grid grown by `ghost` cells on every side:
+    ``(rows + 2 ghost, cols + 2 ghost)``."""
+    hy = h if hy is None else hy
     rows, cols = f.shape
     batch = max(1, min(rows, 2**23 // max(cols * (cols + 2 * ghost), 1)))
     g = _legendre_1d(f, _axis(cols, h, 0, f.dtype), _axis(cols, h, ghost, f.dtype), batch)
     # f*(s) = max_r (s_row x_r + g(r, s_col)) = max_r (s_row x_r - (-g))
     batch = max(1, min(g.shape[1], 2**23 // max(rows * (rows + 2 * ghost), 1)))
-    out = _legendre_1d(-g.T, _axis(rows, h, 0, f.dtype), _axis(rows, h, ghost, f.dtype), batch)
+    out = _legendre_1d(-g.T, _axis(rows, hy, 0, f.dtype), _axis(rows, hy, ghost, f.dtype), batch)
     return out.T
 
 
-def pushforward(potential: jax.Array, density: jax.Array, h, samples: int = 3):
+def pushforward(potential: jax.Array, density: jax.Array, h, samples: int = 3, hy=None):
     """The density ``(grad p*)# density`` on a grid, gathered cell by cell: the mass of
     `density` over the image of the cell under ``grad p``. `potential_ext` is the convex
     potential ``p`` on the grid grown by one ghost cell per side,
@@ -119,8 +122,10 @@ def pushforward(potential: jax.Array, density: jax.Array, h, samples: int = 3):
     mass is its area times the mean of `density` at ``samples x samples`` points spread
     over it (bilinearly in the corners). Compressed cells (a bright region of the other
     side) and stretched ones (a jump across a dark region) are both measured, and the
-    masses of a monotone map sum to the total (no holes, no overlaps)."""
-    mx, my = _corner_map(potential, h)
+    masses of a monotone map sum to the total (no holes, no overlaps). Cells are `h`
+    wide and `hy` high (`h` if None)."""
+    hy = h if hy is None else hy
+    mx, my = _corner_map(potential, h, hy)
     xa, xb, xc, xd = mx[:-1, :-1], mx[:-1, 1:], mx[1:, 1:], mx[1:, :-1]
     ya, yb, yc, yd = my[:-1, :-1], my[:-1, 1:], my[1:, 1:], my[1:, :-1]
     area = 0.5 * ((xc - xa) * (yd - yb) - (xd - xb) * (yc - ya))
@@ -130,10 +135,10 @@ def pushforward(potential: jax.Array, density: jax.Array, h, samples: int = 3):
         a = ((k % samples).astype(mx.dtype) + 0.5) / samples
         sx = (1 - b) * ((1 - a) * xa + a * xb) + b * ((1 - a) * xd + a * xc)
         sy = (1 - b) * ((1 - a) * ya + a * yb) + b * ((1 - a) * yd + a * yc)
-        return total + bilinear(density, sx / h, sy / h)
+        return total + bilinear(density, sx / h, sy / hy)
 
     total = jax.lax.fori_loop(0, samples * samples, add_sample, jnp.zeros_like(area))
-    return jnp.maximum(area, 0.0) / (h * h) * total / samples**2
+    return jnp.maximum(area, 0.0) / (h * hy) * total / samples**2
 
 
 def _normalised(rho: jax.Array, mass) -> jax.Array:
@@ -142,29 +147,31 @@ def _normalised(rho: jax.Array, mass) -> jax.Array:
 
 
 @functools.partial(jax.jit, static_argnames=("buffer",))
-def _back_and_forth(mu, nu, iterations, buffer: int, tol, sigma0, stall):
+def _back_and_forth(mu, nu, iterations, buffer: int, tol, sigma0, stall, stretch):
     """`iterations` at most (traced: passes of different lengths share one compilation),
-    their residuals in a ``(buffer,)`` history (``buffer >= iterations``)."""
+    their residuals in a ``(buffer,)`` history (``buffer >= iterations``); cells
+    `stretch` times as wide as high."""
     rows, cols = mu.shape
     dtype = mu.dtype
-    h = jnp.asarray(1.0 / max(rows, cols), dtype)
+    hy = jnp.asarray(1.0 / max(rows, cols), dtype)
+    h = hy * stretch.astype(dtype)
     xs = _axis(cols, h, 0, dtype)
-    ys = _axis(rows, h, 0, dtype)
+    ys = _axis(rows, hy, 0, dtype)
     half_sq = 0.5 * (xs[None, :] ** 2 + ys[:, None] ** 2)
     mass = jnp.sum(nu)
 
     def value(phi, psi):  # the dual functional, maximised
-        return jnp.sum((half_sq - phi) * nu + (half_sq - psi) * mu) * h * h
+        return jnp.sum((half_sq - phi) * nu + (half_sq - psi) * mu) * h * hy
 
     def half_step(p, rho, dens, other, sigma, old, dual):
         """Ascent on potential `p` (gradient ``rho - dens``), then conjugate twice.
         Returns the other side's potential (with a ghost ring), `p` again (convex),
         the step's new dual value and step size, and the push-forward of `other`
         onto the other side."""
-        work = -neumann_poisson(rho - dens, h, h)  # (-Laplacian)^-1 (rho - dens)
-        grad_sq = jnp.sum(work * (rho - dens)) * h * h
-        q = legendre(p + sigma * work, h)
-        p = legendre(q, h)
+        work = -neumann_poisson(rho - dens, h, hy)  # (-Laplacian)^-1 (rho - dens)
+        grad_sq = jnp.sum(work * (rho - dens)) * h * hy
+        q = legendre(p + sigma * work, h, hy=hy)
+        p = legendre(q, h, hy=hy)
         new = dual(p, q)
         scale, lower, upper = _ARMIJO
         diff = new - old
@@ -173,7 +180,7 @@ def _back_and_forth(mu, nu, iterations, buffer: int, tol, sigma0, stall):
             sigma / scale,
             jnp.where(diff < grad_sq * sigma * lower, sigma * scale, sigma),
         )
-        rho_other = _normalised(pushforward(q, other, h), mass)
+        rho_other = _normalised(pushforward(q, other, h, hy=hy), mass)
         return p, q, new, sigma, rho_other
 
     def body(carry):
@@ -202,7 +209,7 @@ def _back_and_forth(mu, nu, iterations, buffer: int, tol, sigma0, stall):
     residuals = jnp.full((buffer,), jnp.nan, dtype)
     carry = (0, phi, psi, mu, jnp.asarray(sigma0, dtype), value(phi, psi), residuals)
     k, phi, psi, rho_y, sigma, _, residuals = jax.lax.while_loop(cond, body, carry)
-    return k, legendre(phi, h), residuals
+    return k, legendre(phi, h, hy=hy), residuals
 
 
 def _extrapolate_ends(a: jax.Array, axis: int) -> jax.Array:
@@ -213,17 +220,17 @@ def _extrapolate_ends(a: jax.Array, axis: int) -> jax.Array:
 
 
 @jax.jit
-def _corner_map(potential: jax.Array, h):
+def _corner_map(potential: jax.Array, h, hy):
     """``grad p`` at the corners of the cells of potential `p` ``(rows, cols)``:
     differences across the interior cell edges, averaged over the two cells an edge
     has at a corner, linearly extrapolated to the outer corners, and clamped into the
     grid's domain. Returns ``(map_x, map_y)``, each ``(rows + 1, cols + 1)``."""
     rows, cols = potential.shape
     dx = _extrapolate_ends((potential[:, 1:] - potential[:, :-1]) / h, 1)  # (rows, cols+1)
-    dy = _extrapolate_ends((potential[1:, :] - potential[:-1, :]) / h, 0)  # (rows+1, cols)
+    dy = _extrapolate_ends((potential[1:, :] - potential[:-1, :]) / hy, 0)  # (rows+1, cols)
     mx = _extrapolate_ends(0.5 * (dx[1:] + dx[:-1]), 0)
     my = _extrapolate_ends(0.5 * (dy[:, 1:] + dy[:, :-1]), 1)
-    return jnp.clip(mx, 0.0, cols * h), jnp.clip(my, 0.0, rows * h)
+    return jnp.clip(mx, 0.0, cols * h), jnp.clip(my, 0.0, rows * hy)
 
 
 def _check_density(a, name: str) -> np.ndarray:
@@ -250,6 +257,7 @@ def transport_map(
     tol: float = 1e-2,
     stall: float = 5e-3,
     warn: bool = True,
+    stretch: float = 1.0,
 ) -> TransportMap:
     """The optimal transport map (quadratic cost) from density `source` to `target`.
 
@@ -268,6 +276,10 @@ def transport_map(
       smooth pair near 0.02). A number in ``[0, 1)``.
     - `warn`: warn (``warnings.warn``) when neither `tol` nor a stall ended the
       iterations (they ran out).
+    - `stretch`: the cells' width over their height (> 0; 1: square cells): the cost is
+      then that of the grid stretched along x, ``((x1 - y1)^2 + (x2 - y2)^2) / 2`` over
+      ``[0, stretch cols h] x [0, rows h]``, where the map's coordinates are (lens
+      design under leaning light: `transport_start.transport_stretch`).
 
     **Returns:** a `TransportMap` (corner map, potential, residual history).
     """
@@ -284,11 +296,19 @@ def transport_map(
     nu = nu / nu.mean()
     sigma0 = 4.0 / max(mu.max(), nu.max())
     buffer = max(128, 1 << (iterations - 1).bit_length())  # few distinct compilations
+    stretch = check_number(stretch, "stretch", low=0.0, low_open=True)
     k, psi, residuals = _back_and_forth(
-        jnp.asarray(mu, dtype), jnp.asarray(nu, dtype), iterations, buffer, tol, sigma0, stall
+        jnp.asarray(mu, dtype),
+        jnp.asarray(nu, dtype),
+        iterations,
+        buffer,
+        tol,
+        sigma0,
+        stall,
+        jnp.asarray(stretch, dtype),
     )
-    h = 1.0 / max(mu.shape)
-    mx, my = _corner_map(psi, jnp.asarray(h, dtype))
+    hy = jnp.asarray(1.0 / max(mu.shape), dtype)
+    mx, my = _corner_map(psi, hy * jnp.asarray(stretch, dtype), hy)
     k = int(k)
     res = np.asarray(residuals)[:k]
     converged = bool(k < iterations or res[-1] <= tol)

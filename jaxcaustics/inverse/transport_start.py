@@ -46,6 +46,7 @@ import optimistix as optx
 
 from .._checks import check_int, check_number
 from .._warnings import warn_user
+from ..scene.outline import inside_outline
 from ..scene.scene import DirectionalLight
 from ..scene.surface import sample_grid
 from .design_setup import Setup
@@ -61,6 +62,7 @@ from .lens_model import (
     vertex_sampling,
 )
 from .numerics import area_average, binomial_smooth, resample_corner_grid, resample_corners
+from .screen_geometry import flat_landing
 from .transport import MAX_ITERATIONS, transport_map
 
 TRANSPORT_MAX = 512  # the transport grid's longest side, at most
@@ -188,21 +190,13 @@ def transport_stretch(gain, setup: Setup, shape) -> float:
     mirror's screen facing the reflected beam, do not (a mirror under 30 degrees:
     ``gy / gx = cos^2 30``, and its landing fit stalled at 0.37 pixels RMS where vertical
     light reaches 0.01, measured on the camera at 64^2). Transporting between both
-    densities stretched by ``sqrt(gy / gx)`` along x makes the map such a gradient.
-    Returns 1 within 1% of it (the grids are then the heights')."""
+    densities stretched by ``sqrt(gy / gx)`` along x makes the map such a gradient (the
+    transport's cells that much wider than high). Returns 1 within 1% of it."""
     trows, tcols = setup.target_shape
     gx = abs(gain[0]) * setup.width / tcols
     gy = abs(gain[1]) * setup.height / trows
     stretch = float(np.sqrt(gy / gx))
     return 1.0 if abs(stretch - 1.0) < 0.01 else stretch
-
-
-def _stretched(shape, stretch: float) -> tuple[int, int]:
-    """The transport grid for `shape` stretched by `stretch` along x (never finer)."""
-    rows, cols = shape
-    if stretch < 1.0:
-        return rows, max(4, round(cols * stretch))
-    return max(4, round(rows / stretch)), cols
 
 
 def _transport_goal(
@@ -216,18 +210,24 @@ def _transport_goal(
 ):
     """The landing points of the photon vertices: the optimal transport from the
     aperture's flux (times `keep` per cell, if given) to the target, on the heights
-    grid (stretched along x by `stretch`: `transport_stretch`), in `iterations` at
-    most; `smooth`: the map smoothed by a [1, 2, 1] / 4 kernel along each axis (for a
-    fit that reads it between its samples: leaning light). Returns ``(goal_x, goal_y,
+    grid (its cells `stretch` times as wide as high in the transport's cost:
+    `transport_stretch`), in `iterations` at most; `smooth`: the map smoothed by a
+    [1, 2, 1] / 4 kernel along each axis (for a fit that reads it between its samples:
+    leaning light). Returns ``(goal_x, goal_y,
     transport)`` (metres; the `TransportMap`)."""
 
+    dtype = jnp.result_type(float)
+    if not setup.vertical:  # on the screen, through the flat element's map
+        gx, gy, plan = _screen_goal(setup, shape, problem, iterations, keep, stretch)
+        if smooth:
+            gx, gy = binomial_smooth(gx), binomial_smooth(gy)
+        return jnp.asarray(gx, dtype), jnp.asarray(gy, dtype), plan
     top = setup.top
-    grid = _stretched(shape, stretch)
-    source = _source_density(setup.light, setup.aperture, grid, top)
-    source = source * aperture_coverage(setup.problem.outline.lens_outline, setup.aperture, grid)
+    source = _source_density(setup.light, setup.aperture, shape, top)
+    source = source * aperture_coverage(setup.problem.outline.lens_outline, setup.aperture, shape)
     if keep is not None:
-        source = source * (keep if grid == tuple(shape) else area_average(keep, grid))
-    target = area_average(setup.goal, grid)
+        source = source * keep
+    target = area_average(setup.goal, shape)
     sx0, sx1, sy0, sy1 = setup.screen
     # a screen whose axis runs against the blank's (a mirror's) gets the target reversed
     # along it, so that the map stays close to the flat element's
@@ -235,10 +235,10 @@ def _transport_goal(
         target, (sx0, sx1) = target[:, ::-1], (sx1, sx0)
     if setup.flips[1]:
         target, (sy0, sy1) = target[::-1, :], (sy1, sy0)
-    plan = transport_map(source, target, iterations=iterations, warn=False)
-    rows, cols = grid
+    plan = transport_map(source, target, iterations=iterations, warn=False, stretch=stretch)
+    rows, cols = shape
     h = 1.0 / max(rows, cols)
-    gx = sx0 + (sx1 - sx0) * plan.map_x / (cols * h)
+    gx = sx0 + (sx1 - sx0) * plan.map_x / (stretch * cols * h)
     gy = sy0 + (sy1 - sy0) * plan.map_y / (rows * h)
     if smooth:  # the discrete Legendre transforms' one-cell staircase, read between cells
         gx, gy = binomial_smooth(gx), binomial_smooth(gy)
@@ -246,6 +246,83 @@ def _transport_goal(
         gx, gy = (resample_corner_grid(g, problem.grid) for g in (gx, gy))
     dtype = jnp.result_type(float)
     return jnp.asarray(gx, dtype), jnp.asarray(gy, dtype), plan
+
+
+def _flat_image(setup: Setup, shape, keep=None, sub: int = 2):
+    """The flat element's caustic on the screen, on a ``shape`` grid of its cells: the
+    aperture's light (the outline's, times `keep` per heights cell) carried by the flat
+    element (`flat_landing`), ``sub x sub`` rays per heights cell splatted bilinearly
+    onto the cells' centres."""
+    rows, cols = shape
+    x0, x1, y0, y1 = setup.aperture
+    fx = (np.arange(cols * sub) + 0.5) / sub  # in cells
+    fy = (np.arange(rows * sub) + 0.5) / sub
+    px, py = np.meshgrid(x0 + fx * (x1 - x0) / cols, y0 + fy * (y1 - y0) / rows)
+    s, t, weight = flat_landing(setup.problem, setup.pose, px, py)
+    weight = weight * inside_outline(setup.problem.outline.lens_outline, setup.aperture, px, py)
+    if keep is not None:
+        weight = weight * np.repeat(np.repeat(keep, sub, axis=0), sub, axis=1)
+    sx0, sx1, sy0, sy1 = setup.screen
+    u = (s - sx0) / (sx1 - sx0) * cols - 0.5  # in cells, 0 at the first centre
+    v = (t - sy0) / (sy1 - sy0) * rows - 0.5
+    image = np.zeros((rows + 2, cols + 2))  # a ring for the splat's overhang
+    j, i = np.floor(u), np.floor(v)
+    a, b = u - j, v - i
+    j = np.clip(j.astype(int) + 1, 0, cols)
+    i = np.clip(i.astype(int) + 1, 0, rows)
+    for di, dj, w in (
+        (0, 0, (1 - a) * (1 - b)),
+        (0, 1, a * (1 - b)),
+        (1, 0, (1 - a) * b),
+        (1, 1, a * b),
+    ):
+        # (a bincount: np.add.at took seconds at 2048^2 rays)
+        cells = ((i + di) * (cols + 2) + j + dj).ravel()
+        image += np.bincount(cells, (weight * w).ravel(), image.size).reshape(image.shape)
+    image[1, :] += image[0, :]  # the overhang folded back onto the edge cells
+    image[-2, :] += image[-1, :]
+    image[:, 1] += image[:, 0]
+    image[:, -2] += image[:, -1]
+    return image[1:-1, 1:-1]
+
+
+def _screen_goal(setup: Setup, shape, problem: LensModel, iterations, keep, stretch):
+    """The landing points of the photon vertices, by a transport on the screen: from the
+    flat element's caustic (`_flat_image`) to the target, both on the screen's grid of
+    `shape` cells, composed with the flat element's map (a vertex goes where the
+    transport sends its flat landing point). The flat element's own distortions (a
+    point light's keystone on a tilted screen, a mirror's reversal, the foreshortening
+    of a leaning beam) then stay out of what the heights must make. Returns
+    ``(goal_x, goal_y, transport)`` on the photon grid (metres)."""
+    source = _flat_image(setup, shape, keep)
+    target = area_average(setup.goal, shape)
+    plan = transport_map(source, target, iterations=iterations, warn=False, stretch=stretch)
+    rows, cols = shape
+    h = 1.0 / max(rows, cols)
+    sx0, sx1, sy0, sy1 = setup.screen
+    map_s = sx0 + (sx1 - sx0) * plan.map_x / (stretch * cols * h)  # (rows + 1, cols + 1)
+    map_t = sy0 + (sy1 - sy0) * plan.map_y / (rows * h)
+    x0, x1, y0, y1 = setup.aperture
+    prow, pcol = problem.grid
+    vx, vy = np.meshgrid(np.linspace(x0, x1, pcol), np.linspace(y0, y1, prow))
+    s, t, _ = flat_landing(setup.problem, setup.pose, vx, vy)
+    u = np.clip((s - sx0) / (sx1 - sx0) * cols, 0.0, cols)  # in corner units
+    v = np.clip((t - sy0) / (sy1 - sy0) * rows, 0.0, rows)
+    return _corner_bilinear(map_s, u, v), _corner_bilinear(map_t, u, v), plan
+
+
+def _corner_bilinear(grid: np.ndarray, u: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """`grid` ``(rows + 1, cols + 1)`` of corner values read bilinearly at ``(u, v)``
+    (corner units)."""
+    j = np.clip(np.floor(u).astype(int), 0, grid.shape[1] - 2)
+    i = np.clip(np.floor(v).astype(int), 0, grid.shape[0] - 2)
+    a, b = u - j, v - i
+    return (
+        (1 - a) * (1 - b) * grid[i, j]
+        + a * (1 - b) * grid[i, j + 1]
+        + (1 - a) * b * grid[i + 1, j]
+        + a * b * grid[i + 1, j + 1]
+    )
 
 
 # the first pass under leaning light (transport iterations, fit steps): enough to know
@@ -340,6 +417,10 @@ class TransportStart(eqx.Module):
       this much); 0: black stays black.
     - `oversample`: photon vertices per heights sample along each axis (the map
       resampled bilinearly to them).
+    - `corrections`: rounds of target correction after the fit (`prediction.py`: the
+      target corrected by the predicted caustic, the transport and fit solved again from
+      the heights reached); ``None``: one under leaning light or off a mirror (where the
+      landing fit cannot match the transport's map), none under vertical light.
     """
 
     grid: int | None = None
@@ -347,15 +428,27 @@ class TransportStart(eqx.Module):
     max_steps: int = 40
     floor: float = 0.0
     oversample: int = 1
+    corrections: int | None = None
     # the designed surface's `HeightField` boundary (`LENS_BOUNDARY` says why)
     boundary: ClassVar[str] = LENS_BOUNDARY
 
-    def __init__(self, grid=None, iterations=100, max_steps=40, floor=0.0, oversample=1):
+    def __init__(
+        self, grid=None, iterations=100, max_steps=40, floor=0.0, oversample=1, corrections=None
+    ):
         self.grid = None if grid is None else check_int(grid, "grid", 4)
         self.iterations = check_int(iterations, "iterations", 1, MAX_ITERATIONS)
         self.max_steps = check_int(max_steps, "max_steps", 1)
         self.floor = check_number(floor, "floor", low=0.0, high=1.0, high_open=True)
         self.oversample = check_int(oversample, "oversample", 1)
+        self.corrections = (
+            None if corrections is None else check_int(corrections, "corrections", 0, 8)
+        )
+
+    def correction_rounds(self, setup: Setup) -> int:
+        """Rounds of target correction for `setup` (`corrections`, or its default)."""
+        if self.corrections is not None:
+            return self.corrections
+        return 0 if setup.vertical else 1
 
     def shape(self, target_shape: Sequence[int], width: float, height: float):
         """The heights grid for a target of `target_shape` on a `width` x `height`
@@ -383,15 +476,9 @@ class TransportStart(eqx.Module):
         sampling = vertex_sampling(shape, setup.aperture, model.grid, setup.boundary)
         gain = _landing_gain(model, sampling, shape, dx, dy, pixel)
         stretch = transport_stretch(gain, setup, shape)
-        t0 = time.perf_counter()
-        rough = min(_ROUGH_PASS[0], self.iterations) if leaning else self.iterations
-        goal_x, goal_y, plan = _transport_goal(
-            setup, shape, model, rough, smooth=leaning, stretch=stretch
-        )
-        transport_s = time.perf_counter() - t0
-        transport_steps = plan.iterations
         symbol = jnp.asarray(fit_symbol(shape, dx, dy, *gain), dtype)
-        fit = _LandingFit(model, goal_x, goal_y, symbol, pixel, sampling)
+        zeros = jnp.zeros(model.grid, dtype)
+        fit = _LandingFit(model, zeros, zeros, symbol, pixel, sampling)
         # converged: a step moves no vertex by more than 1/100 of a pixel (weak-lens
         # estimate)
         atol = 0.01 * min(dx / abs(gain[0]), dy / abs(gain[1]))
@@ -402,16 +489,31 @@ class TransportStart(eqx.Module):
         else:
             h0 = jnp.zeros(shape, dtype)
         info = {"level": 0, "shape": shape}
-        first_steps = min(_ROUGH_PASS[1], self.max_steps) if leaning else self.max_steps
-        run = iterate(
-            fit, solver, h0, None, max_steps=first_steps, history=history,
-            callback=callback, info=info, patience=_PATIENCE,
-        )  # fmt: skip
-        h = np.asarray(run.y)
-        if not np.all(np.isfinite(h)):
-            raise RuntimeError(f"the landing fit ({shape}) gave heights that are not finite")
+        transport_s, transport_steps = 0.0, 0
+        steps, seconds, compile_s = 0, 0.0, float("nan")
+        # a warm start under leaning light (a target correction's) knows its edges'
+        # heights already: no first pass
+        if leaning and setup.initial is not None:
+            h = np.asarray(h0)
+        else:
+            t0 = time.perf_counter()
+            rough = min(_ROUGH_PASS[0], self.iterations) if leaning else self.iterations
+            goal_x, goal_y, plan = _transport_goal(
+                setup, shape, model, rough, smooth=leaning, stretch=stretch
+            )
+            transport_s = time.perf_counter() - t0
+            transport_steps = plan.iterations
+            fit = eqx.tree_at(lambda f: (f.goal_x, f.goal_y), fit, (goal_x, goal_y))
+            first_steps = min(_ROUGH_PASS[1], self.max_steps) if leaning else self.max_steps
+            run = iterate(
+                fit, solver, h0, None, max_steps=first_steps, history=history,
+                callback=callback, info=info, patience=_PATIENCE,
+            )  # fmt: skip
+            h = np.asarray(run.y)
+            if not np.all(np.isfinite(h)):
+                raise RuntimeError(f"the landing fit ({shape}) gave heights that are not finite")
+            steps, seconds, compile_s = run.steps, run.seconds, run.compile_seconds
         weight, keep, bevel = _edge_bevel(setup, h)
-        steps, seconds, compile_s = run.steps, run.seconds, run.compile_seconds
         if leaning:  # in full, without the band that the bevel takes, from these heights
             t1 = time.perf_counter()
             goal_x, goal_y, plan = _transport_goal(
@@ -425,6 +527,8 @@ class TransportStart(eqx.Module):
                 history=history, callback=callback, info=info, patience=_PATIENCE,
             )  # fmt: skip
             steps, seconds = steps + run.steps, seconds + run.seconds
+            if np.isnan(compile_s):
+                compile_s = run.compile_seconds
             h = np.asarray(run.y)
             h = (1.0 - weight) * (h - h.max())
         h = h - h.max()

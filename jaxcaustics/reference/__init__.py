@@ -112,9 +112,9 @@ glass of index ``n``.
 
 Mirror (`MirrorScene`): face ``z = H(x, y)`` about the rest plane ``z = 0``, the aperture
 and start points as for lenses on that plane, the first root along the whole line (a hit
-outside the extent or the outline misses the blank: lost), reflection ``d - 2 (d.m) m`` about the face's unit normal ``m``, landing on the screen
-pose's plane as above; each photon carries the lens's flux density times
-``scene.reflectance``.
+outside the extent or the outline misses the blank: lost), reflection ``d - 2 (d.m) m``
+about the face's unit normal ``m``, landing on the screen pose's plane as above; each
+photon carries the lens's flux density times ``scene.reflectance``.
 
 Mesh (`MeshScene`): a generator mesh (triangles counter-clockwise seen from outside), a
 ``"refractor"`` of index ``n`` (each of ``scene.ior``) or a ``"mirror"``, and opaque

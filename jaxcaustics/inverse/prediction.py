@@ -1,0 +1,62 @@
+"""The caustic a design predicts (`predict_caustic`), and the target corrected by it
+(`corrected_goal`) for another transport start under leaning light.
+
+Under leaning light, or off a mirror, the landing point also moves with the surface's
+height (the hit lies off the rest-plane point it was aimed through, and higher or lower),
+not only with its slope: the map the element can make is then not a gradient, as the
+optimal transport's is, and the landing fit is left with a misfit that grows with relief
+times the lean (measured on the camera off a mirror, 30 degrees, 1 m: 0.16 pixels RMS at
+0.75 mm of relief, 0.039 at 0.18 mm; vertical light 0.01). The image it makes is then
+off where the target has edges. Correcting the target by the ratio of the target to the
+predicted caustic (both blurred by a Gaussian of 0.7 pixels, the ratio clipped to
+``[0.5, 2]``) and solving again from the heights reached, as caustic designers do,
+puts the light back (measured, that mirror judged by the reference: relative L2 0.047,
+then 0.038 and 0.035 after one and two corrections).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.ndimage import gaussian_filter
+
+from ..methods.triangles.method import trace_photons, triangle_window, triangles_image
+from .design_setup import Setup
+from .lens_setup import predict_photons_default
+
+PREDICT_WINDOW = 16  # pixels: the prediction's largest triangle window
+_BLUR = 0.7  # pixels: the correction's Gaussian
+_CLIP = (0.5, 2.0)  # the correction's ratio, per round
+
+
+def predict_caustic(setup: Setup, h) -> tuple[np.ndarray, float, int, object]:
+    """The caustic of `setup`'s element with heights `h` (caustic triangles at the
+    design's `predict_photons`): ``(image (rows, cols), flux fraction missed, window,
+    scene)``."""
+    scene = setup.element_scene(h)
+    n_pred = setup.predict_photons or predict_photons_default(setup.target_shape)
+    # the window that holds 99.9% of the flux, at most PREDICT_WINDOW pixels: the few
+    # triangles stretched across a dark gap would otherwise size it (32 pixels: 4x the
+    # time of 16 for 0.26% of the image, measured on a design for a dozen dots)
+    photons = trace_photons(scene, (n_pred, n_pred))
+    window = min(PREDICT_WINDOW, triangle_window(photons, scene.receiver))
+    # drawn from these photons (`caustic_triangles` would trace them again: 4.5 s against
+    # 2.5 s at 513^2, compilation included, the same image to 1e-7)
+    images, missed = triangles_image(photons, scene.receiver, window=window)
+    return np.asarray(images[0]), float(missed[0]), window, scene
+
+
+def relative_l2(image: np.ndarray, target: np.ndarray) -> float:
+    """``|a - b| / |b|`` of the two images scaled to unit mean."""
+    a = image / image.mean() if image.mean() > 0 else image
+    b = target / target.mean()
+    return float(np.linalg.norm(a - b) / np.linalg.norm(b))
+
+
+def corrected_goal(goal: np.ndarray, target: np.ndarray, predicted: np.ndarray) -> np.ndarray:
+    """`goal` (the target the last solve aimed at) times the blurred ratio of `target`
+    to `predicted` (both at unit mean), clipped; at `goal`'s mean."""
+    t = target / target.mean()
+    e = predicted / max(float(predicted.mean()), 1e-300)
+    ratio = gaussian_filter(t, _BLUR) / np.maximum(gaussian_filter(e, _BLUR), 1e-3)
+    corrected = goal * np.clip(ratio, *_CLIP)
+    return corrected * (goal.mean() / corrected.mean())
