@@ -421,7 +421,13 @@ def test_edges_under_leaning_light_get_a_bevel_and_the_band_it_takes_no_transpor
     cell = 2.0 / 64
     h = np.full((64, 64), -0.1)
     h[32, 32] = 0.0
-    setup = SimpleNamespace(aperture=(-1.0, 1.0, -1.0, 1.0), screen_distance=7.0, thickness=0.5)
+    setup = SimpleNamespace(
+        aperture=(-1.0, 1.0, -1.0, 1.0),
+        screen_distance=7.0,
+        thickness=0.5,
+        top=7.5,
+        is_mirror=False,
+    )
     setup.light = DirectionalLight.from_angles(0.0)
     weight, keep, k = _edge_bevel(setup, h)
     assert k == 0 and not weight.any() and np.all(keep == 1.0)
@@ -498,7 +504,13 @@ def test_a_ring_wider_than_the_bevel_can_take_warns():
 
     h = np.full((16, 16), -2.0)
     h[8, 8] = 0.0
-    setup = SimpleNamespace(aperture=(-1.0, 1.0, -1.0, 1.0), screen_distance=7.0, thickness=2.5)
+    setup = SimpleNamespace(
+        aperture=(-1.0, 1.0, -1.0, 1.0),
+        screen_distance=7.0,
+        thickness=2.5,
+        top=9.5,
+        is_mirror=False,
+    )
     setup.light = DirectionalLight.from_angles(20.0)  # ring 0.73 m: 5.8 cells of 0.125 m
     with pytest.warns(UserWarning, match="more than the bevel's 4"):
         weight, keep, k = _edge_bevel(setup, h)

@@ -21,6 +21,12 @@ def bump(n=24, amplitude=0.002):
     return amplitude * np.exp(-2.0 * (xx**2 + (yy - 0.2) ** 2)) - amplitude
 
 
+def dip(n=24, amplitude=0.002):
+    """A dip whose rim lies on the rest plane (to 4e-5 m): no light leans out past it."""
+    yy, xx = np.mgrid[-1 : 1 : n * 1j, -1 : 1 : n * 1j]
+    return -amplitude * np.exp(-2.0 * (xx**2 + (yy - 0.2) ** 2))
+
+
 def tilted_mirror(heights, light, distance=1.0, shape=(32, 32), half=0.06):
     d = np.asarray(light.unit_direction) if isinstance(light, jc.DirectionalLight) else None
     if d is None:  # the central ray of a point light
@@ -65,7 +71,7 @@ def test_a_mirrors_caustic_matches_the_reference(light):
     both averaged over 4 x 4 pixel blocks (the reference's binning aliases against the
     pixels: under the point light, 2.8% of the peak at 1024^2 photons, 0.9% at
     3072^2): within 2% of the peak."""
-    scene = tilted_mirror(bump(), light)
+    scene = tilted_mirror(dip(), light)
     ref = blocks(trace_mirror(scene, 2048))
     image = blocks(np.asarray(jc.render(scene, photons=257)))
     assert (ref > 0).mean() > 0.5  # the light is on the screen
@@ -197,8 +203,8 @@ def test_a_mirror_problem_survives_its_json():
 
 def test_a_mirror_design_matches_its_target_by_the_reference():
     """A 24^2 blob under light 30 degrees from the mirror's normal, the screen 1 m away
-    facing the reflected beam, judged by the reference (512^2 photons). Measured: 0.014
-    (the design's own prediction 0.009)."""
+    facing the reflected beam, judged by the reference (512^2 photons). Measured: 0.013
+    (the design's own prediction 0.006)."""
     yy, xx = np.mgrid[-1:1:24j, -1:1:24j]
     target = 0.3 + np.exp(-4 * ((xx - 0.3) ** 2 + yy**2)) + 0.6 * np.exp(-8 * (xx + 0.4) ** 2)
     problem = jc.DesignProblem(
@@ -210,5 +216,43 @@ def test_a_mirror_design_matches_its_target_by_the_reference():
     assert isinstance(design.scene, jc.MirrorScene)
     ref = trace_mirror(design.scene, 512)
     error = relative_l2(ref / ref.mean(), target / target.mean())
-    assert error < 0.03
-    assert abs(error - design.predicted_error) < 0.015
+    assert error < 0.025
+    assert abs(error - design.predicted_error) < 0.012
+
+
+def test_the_transport_is_stretched_by_the_cosine_of_the_mirrors_angle():
+    """Off a mirror under 30-degree light, with the screen across the reflected beam, a
+    slope along x moves the light cos 30 as far (in the screen's width) as one along y
+    moves it in its height: the transport's cells are cos 30 as wide as high."""
+    from jaxcaustics.inverse.lens_model import level_model, vertex_sampling
+    from jaxcaustics.inverse.lens_setup import prepare
+    from jaxcaustics.inverse.transport_start import _landing_gain, transport_stretch
+
+    problem = jc.DesignProblem(
+        jc.Mirror(0.02), jc.Rectangle(0.1, 0.1), jc.Screen(1.0), jc.DirectionalLight.from_angles(30)
+    )
+    setup = prepare(problem, np.ones((16, 16)), jc.TransportStart(), None)
+    shape = setup.shapes[-1]
+    model = level_model(setup, shape)
+    sampling = vertex_sampling(shape, setup.aperture, model.grid, setup.boundary)
+    pixel = jnp.asarray([(setup.screen[1] - setup.screen[0]) / 16, 0.1 / 16])
+    gain = _landing_gain(model, sampling, shape, 0.1 / shape[1], 0.1 / shape[0], pixel)
+    assert setup.flips == (True, False)  # the mirror reverses the screen's s axis
+    assert transport_stretch(gain, setup, shape) == pytest.approx(np.cos(np.radians(30)), 1e-3)
+
+
+def test_a_target_correction_brings_a_mirror_design_closer():
+    """The default under leaning light (one correction) against none: the predicted
+    caustic's error falls (measured on this 24^2 blob: 0.0087 to 0.0061)."""
+    yy, xx = np.mgrid[-1:1:24j, -1:1:24j]
+    target = 0.3 + np.exp(-4 * ((xx - 0.3) ** 2 + yy**2)) + 0.6 * np.exp(-8 * (xx + 0.4) ** 2)
+    problem = jc.DesignProblem(
+        jc.Mirror(0.02), jc.Rectangle(0.1, 0.1), jc.Screen(1.0), jc.DirectionalLight.from_angles(30)
+    )
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        none = jc.design(problem, target, start=jc.TransportStart(corrections=0))
+        one = jc.design(problem, target)
+    stages = [r["stage"] for r in one.levels]
+    assert stages.count("target correction") == 1 and stages.count("landing fit") == 2
+    assert one.predicted_error < none.predicted_error

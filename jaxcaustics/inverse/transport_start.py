@@ -491,9 +491,10 @@ class TransportStart(eqx.Module):
         info = {"level": 0, "shape": shape}
         transport_s, transport_steps = 0.0, 0
         steps, seconds, compile_s = 0, 0.0, float("nan")
-        # a warm start under leaning light (a target correction's) knows its edges'
-        # heights already: no first pass
-        if leaning and setup.initial is not None:
+        # a mirror's warm start under leaning light (a target correction's) knows its
+        # edges' heights already: no first pass (a lens's heights have their bevel in
+        # them: it needs the first pass's unbevelled edges)
+        if leaning and setup.is_mirror and setup.initial is not None:
             h = np.asarray(h0)
         else:
             t0 = time.perf_counter()

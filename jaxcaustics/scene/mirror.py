@@ -11,17 +11,9 @@ import numpy as np
 from jaxtyping import Array, Float
 
 from .outline import check_outline
-from .scene import (
-    DirectionalLight,
-    HeightField,
-    PlaneReceiver,
-    PointLight,
-    as_float_array,
-    check_finite,
-    check_light,
-    is_concrete,
-)
+from .scene import DirectionalLight, HeightField, PlaneReceiver, PointLight, check_light
 from .screen_pose import ScreenPose
+from .values import as_float_array, check_finite, is_concrete
 
 
 class MirrorScene(eqx.Module):

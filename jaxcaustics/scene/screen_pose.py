@@ -19,7 +19,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
-from .scene import as_float_array, check_finite, check_positive_scalar, is_concrete
+from .values import as_float_array, check_finite, check_positive_scalar, is_concrete
 
 
 def _vector(value, name: str) -> Array:

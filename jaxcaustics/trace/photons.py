@@ -226,6 +226,40 @@ def reflect_components(d, normal):
     return tuple(a - twice * b for a, b in zip(d, normal, strict=True))
 
 
+def _on_face(scene: MirrorScene, px, py, hit_x, hit_y, grid):
+    """The fraction of each photon's share of the grid (a grid cell about its rest-plane
+    point, clipped to the aperture) whose hits lie on the face, taking its own hit's
+    offset for the whole cell: along each axis the cell moved by the offset, clipped to
+    the extent, over the cell clipped to the extent; times the outline's test of the hit
+    for a round or polygonal blank."""
+    surface = scene.surface
+    x0, x1, y0, y1 = surface.extent
+    cx, cy = 0.5 * (x0 + x1), 0.5 * (y0 + y1)
+    cos_r, sin_r = jnp.cos(surface.rotation), jnp.sin(surface.rotation)
+
+    def field(x, y):  # into the surface's own (unrotated) frame
+        return (
+            cx + cos_r * (x - cx) + sin_r * (y - cy),
+            cy - sin_r * (x - cx) + cos_r * (y - cy),
+        )
+
+    hu, hv = field(hit_x, hit_y)
+    ru, rv = field(px, py)
+
+    def share(hit, rest, lo, hi, half):
+        moved = jnp.minimum(hit + half, hi) - jnp.maximum(hit - half, lo)
+        own = jnp.minimum(rest + half, hi) - jnp.maximum(rest - half, lo)
+        return jnp.clip(moved / own, 0.0, 1.0)
+
+    rows, cols = grid
+    fraction = share(hu, ru, x0, x1, 0.5 * (x1 - x0) / (cols - 1)) * share(
+        hv, rv, y0, y1, 0.5 * (y1 - y0) / (rows - 1)
+    )
+    if scene.outline != "rectangle":
+        fraction = fraction * inside_outline(scene.outline, (x0, x1, y0, y1), hu, hv)
+    return fraction
+
+
 def mirror_photons(
     scene: MirrorScene, grid: tuple[int, int], hit_iterations: int = 3, band=None
 ) -> Photons:
@@ -235,8 +269,8 @@ def mirror_photons(
     landing on the screen (positions in its ``(s, t)`` frame). A photon whose hit lies
     beyond the blank's edge (its line crosses the rest plane inside the aperture, but
     the face there lies lower and the ray passes the edge: the light leaning out over
-    a low edge) misses the mirror, and one that misses the screen's lit face is lost:
-    both are invalid. Flux densities carry the face's reflectance."""
+    a low edge) misses the mirror: it carries no flux; one that misses the screen's lit
+    face is invalid. Flux densities carry the face's reflectance."""
     dtype = scene.surface.heights.dtype
     px, py, d, density, cell_area = _aperture_rays(scene, grid, band)
     hit_x, hit_y, hit_z, hx, hy = ray_surface_hit(
@@ -245,16 +279,14 @@ def mirror_photons(
     normal = _normalise((-hx, -hy, jnp.ones_like(hx)))
     out = reflect_components(d, normal)
     facing = sum(a * b for a, b in zip(d, normal, strict=True)) < 0.0
-    # a ray whose hit lies beyond the blank's edge misses the mirror (lost)
-    surface = scene.surface
-    x0, x1, y0, y1 = surface.extent
-    cx, cy = 0.5 * (x0 + x1), 0.5 * (y0 + y1)
-    cos_r, sin_r = jnp.cos(surface.rotation), jnp.sin(surface.rotation)
-    hit_u = cx + cos_r * (hit_x - cx) + sin_r * (hit_y - cy)
-    hit_v = cy - sin_r * (hit_x - cx) + cos_r * (hit_y - cy)
-    on_face = inside_outline(scene.outline, (x0, x1, y0, y1), hit_u, hit_v)
-    landed, valid = _land((hit_x, hit_y, hit_z), out, facing & on_face, scene.screen_pose)
-    flux = jnp.where(valid, density * scene.reflectance.astype(dtype), 0.0)
+    # a ray whose hit lies beyond the blank's edge misses the mirror (lost): each
+    # photon carries the part of its share of the grid whose hits stay on the face
+    # (`_on_face`), and stays valid, as one outside the outline does (measured on a 24^2
+    # mirror design: its edge column predicted at 0.53 of the reference's when such
+    # photons were invalid, the triangles about them dropped whole)
+    on_face = _on_face(scene, px, py, hit_x, hit_y, grid)
+    landed, valid = _land((hit_x, hit_y, hit_z), out, facing, scene.screen_pose)
+    flux = jnp.where(valid, density * on_face * scene.reflectance.astype(dtype), 0.0)
     photons = _stack_channels([_stack(landed)], [_stack(out)], [flux], [valid], cell_area, dtype)
     return _clip_band(photons, grid, band)
 
