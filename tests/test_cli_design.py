@@ -209,3 +209,27 @@ def test_an_outline_that_is_no_shape_is_one_line_naming_the_flag(tmp_path, capsy
         assert main(["design", "--outline", spec, "--output", str(tmp_path / "out")]) == 2
         err = capsys.readouterr().err
         assert "`--outline`" in err and len(err.strip().splitlines()) == 1, err
+
+
+def test_a_mirror_is_designed_described_and_verified_from_its_folder(tmp_path):
+    """`--element mirror`: the screen faces the reflected beam, the folder describes a
+    mirror, and `jaxcaustics verify FOLDER` traces its exported heights off a mirror."""
+    import json
+
+    import jaxcaustics as jc
+    from jaxcaustics.cli.verify import exported_lens
+
+    out = tmp_path / "mirror"
+    args = ["design", "--size", "16", "--element", "mirror", "--zenith", "30"]
+    assert main([*args, "--screen-distance", "1m", "--output", str(out)]) == 0
+    described = json.loads((out / "design.json").read_text())
+    assert described["problem"]["element"] == {"kind": "mirror", "thickness": 0.01}
+    scene, target = exported_lens(out)
+    assert isinstance(scene, jc.MirrorScene) and target.shape == (16, 16)
+    np.testing.assert_allclose(  # the screen 1 m along the reflected beam, facing it
+        scene.screen_pose.centre, [np.sin(np.radians(30)), 0.0, np.cos(np.radians(30))], 1e-6
+    )
+    assert main(["verify", str(out), "--photons", "128"]) == 0
+    figures = json.loads((out / "verification.json").read_text())
+    assert figures["heights"] < 0.1  # the exported heights, traced by the reference
+    assert main([*args, "--screen-normal", "ground", "--output", str(tmp_path / "x")]) == 2

@@ -1,5 +1,5 @@
-"""Caustic design: from a target picture to the height field of a lens (`design`, and
-`design_lens`, its keyword form).
+"""Caustic design: from a target picture to the height field of a lens or a mirror
+(`design`, and `design_lens`, its keyword form).
 
 A design is a problem stated as data (`jaxcaustics.inverse.problem`: the element, the
 blank's outline, the light, the screen), solved by strategies, each a Module of its
@@ -7,7 +7,8 @@ settings in a file of its own:
 
 - `TransportStart` (default; `transport_start.py`): the optimal transport from the
   aperture's flux to the target gives every photon's landing point, and the heights are
-  fitted to them with the exact optics;
+  fitted to them with the exact optics (under leaning light and off mirrors, the target
+  is then corrected by the predicted caustic and solved again: `prediction.py`);
 - `PoissonLevels` (`poisson_levels.py`): the weak-lens Poisson start and the irradiance
   residual solved coarse to fine (needs light everywhere: a floor);
 - `ImageRefinement` (the finish, `image_refine.py`): a few L-BFGS steps on the image
@@ -17,7 +18,7 @@ Every stage steps its Optimistix solver through one driver (`driver.iterate`); t
 optics are `lens_model.LensModel`; the checks and the derived set-up are
 `lens_setup.prepare`. The result (`LensDesign`) carries the forward model's predicted
 caustic of the final heights; judge a design by tracing what was exported with the
-reference (`verify_lens`).
+reference (`verify_lens`; `verify_heights` for mirrors and posed screens).
 """
 
 from __future__ import annotations
@@ -53,7 +54,8 @@ class LensDesign:
     - `heights`: ``(rows, cols)`` NumPy array, metres: the top surface relative to its
       rest plane, with ``max(heights) = 0`` (``thickness`` is the blank's thickness, the
       design is milled into it; the thinnest point is ``thickness + min(heights)``).
-    - `scene`: the `LensScene` (receiver: the screen's pixel grid, the target's shape).
+    - `scene`: the `LensScene`, or the `MirrorScene` of a mirror (receiver: the screen's
+      pixel grid, the target's shape, in the screen's own frame when it is posed).
     - `predicted`: the forward model's caustic on the screen (caustic triangles, exact
       reconstruction), ``(rows, cols)``, irradiance as `caustic_triangles` gives it.
     - `target`: the target as used (float, scaled to the flux of the lens, masked).

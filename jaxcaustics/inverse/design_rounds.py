@@ -131,7 +131,11 @@ def solve_in_rounds(
             h = state["heights"][k - 1]
             predicted = predict_caustic(setup, h)[0]
             goal = corrected_goal(state["goal"], setup.goal, predicted)
-            again = dataclasses.replace(setup, goal=goal, initial=h)
+            # a mirror's solve starts from the heights reached; a lens's from its own
+            # start (its heights carry their edge bevel, whose steep rim sent a warm fit
+            # to NaN: measured under 30-degree light on the camera at 128^2)
+            warm = h if setup.is_mirror else setup.initial
+            again = dataclasses.replace(setup, goal=goal, initial=warm)
             reports.append(
                 {
                     "stage": "target correction",

@@ -1,12 +1,14 @@
-"""The lens as the design sees it: the exact optics of a height-field lens written lean
-for the solvers (`LensModel`), and the grids it is solved on.
+"""The element as the design sees it: the exact optics of a height-field lens or mirror
+written lean for the solvers (`LensModel`), and the grids it is solved on.
 
-The lens scene (`LensScene`): screen ``z = 0``, flat bottom face at ``z =
-screen_distance``, top surface ``z = screen_distance + thickness + H(x, y)``. A photon
-grid over the aperture (the grid's vertices) is traced exactly: Snell at the top, the
-glass down to the bottom face, Snell there, the screen distance (`LensModel.landing`, the
-physics of `lens_photons`). The surface is read through separable Catmull-Rom weights
-where the hits are known in advance (`vertex_sampling`).
+The lens scene (`LensScene`): screen ``z = 0`` (or posed: `ScreenPose`), flat bottom
+face at ``z = screen_distance``, top surface ``z = screen_distance + thickness + H(x,
+y)``. A photon grid over the aperture (the grid's vertices) is traced exactly: Snell at
+the top, the glass down to the bottom face, Snell there, the screen
+(`LensModel.landing`, the physics of `lens_photons`). A mirror (`MirrorScene`): the face
+``z = H(x, y)``, the reflection, the posed screen (`mirror_photons`). The surface is
+read through separable Catmull-Rom weights where the hits are known in advance
+(`vertex_sampling`).
 
 Weak-lens relation (collimated light along ``-z``): a photon through the aperture point
 ``p`` lands near ``p + D grad H(p)`` with ``D = (n - 1) (screen_distance + thickness /
