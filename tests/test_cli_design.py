@@ -211,6 +211,7 @@ def test_an_outline_that_is_no_shape_is_one_line_naming_the_flag(tmp_path, capsy
         assert "`--outline`" in err and len(err.strip().splitlines()) == 1, err
 
 
+@pytest.mark.slow  # a design and a verification, 6 s (the default suite's budget)
 def test_a_mirror_is_designed_described_and_verified_from_its_folder(tmp_path):
     """`--element mirror`: the screen faces the reflected beam, the folder describes a
     mirror, and `jaxcaustics verify FOLDER` traces its exported heights off a mirror."""
