@@ -22,13 +22,12 @@ from __future__ import annotations
 
 import argparse
 import json
-import subprocess
 import sys
 import tempfile
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).parent))  # the harness beside this script
-from harness import environment, once, read_results, write_results  # noqa: E402
+from harness import once, run_rows  # noqa: E402
 
 NAME = "outline"
 PHOTONS = (4096, 8192)
@@ -145,21 +144,7 @@ def main(argv=None) -> None:
     parser.add_argument("--rows", default=",".join(ROWS))
     parser.add_argument("--one", help=argparse.SUPPRESS)
     args = parser.parse_args(argv)
-    if args.one:
-        print(json.dumps(one(args.one)))
-        return
-    rows = (read_results(NAME) or {}).get("rows", {})
-    env = environment()
-    for row in args.rows.split(","):
-        proc = subprocess.run(
-            [sys.executable, __file__, "--one", row], capture_output=True, text=True
-        )
-        if proc.returncode != 0:
-            print(proc.stderr[-2000:])
-            continue
-        rows[row] = json.loads(proc.stdout.strip().splitlines()[-1])
-        print(row, f"{rows[row]['total_s']:.1f} s", rows[row]["reference"], flush=True)
-        write_results(NAME, rows, report(rows), env=env)
+    run_rows(NAME, __file__, args.rows, one, report, args.one)
 
 
 if __name__ == "__main__":

@@ -13,6 +13,7 @@ import os
 import platform
 import statistics
 import subprocess
+import sys
 import time
 from pathlib import Path
 from typing import Any, NamedTuple
@@ -161,6 +162,27 @@ def read_results(name: str, out: Path = RESULTS) -> dict | None:
     """What `write_results` wrote to ``<out>/<name>.json``; None when there is none."""
     path = Path(out) / f"{name}.json"
     return json.loads(path.read_text()) if path.exists() else None
+
+
+def run_rows(name: str, script: str, rows_arg: str, one, report, argv_one=None) -> None:
+    """A benchmark of rows, each measured by ``script --one ROW`` in a fresh process
+    (compilation counted), its JSON result merged into ``results/NAME.json`` and the
+    report rewritten after every row. `argv_one`: run `one` here instead (the child)."""
+    if argv_one:
+        print(json.dumps(one(argv_one)))
+        return
+    rows = (read_results(name) or {}).get("rows", {})
+    env = environment()
+    for row in rows_arg.split(","):
+        proc = subprocess.run(
+            [sys.executable, script, "--one", row], capture_output=True, text=True
+        )
+        if proc.returncode != 0:
+            print(proc.stderr[-2000:])
+            continue
+        rows[row] = json.loads(proc.stdout.strip().splitlines()[-1])
+        print(row, f"{rows[row]['total_s']:.1f} s", rows[row]["reference"], flush=True)
+        write_results(name, rows, report(rows), env=env)
 
 
 def pick(parser, text: str, known, what: str) -> list[str]:
