@@ -38,7 +38,8 @@ class Setup:
     timings: dict[str, float]
     warn_error: float = 0.15
     pose: Any = None  # the screen's `ScreenPose`; None: the ground under a lens
-    # whether the screen's s and t axes run against the blank's x and y (a mirror's do)
+    # whether the screen's s and t axes run against the blank's x and y (a mirror's do;
+    # for the report: the transport on the screen needs no reversal)
     flips: tuple[bool, bool] = (False, False)
 
     width = property(lambda self: self.problem.outline.width)

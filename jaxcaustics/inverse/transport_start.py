@@ -228,13 +228,9 @@ def _transport_goal(
     if keep is not None:
         source = source * keep
     target = area_average(setup.goal, shape)
+    # (vertical light: the screen's axes run along the blank's; every other case is
+    # transported on the screen, `_screen_goal`)
     sx0, sx1, sy0, sy1 = setup.screen
-    # a screen whose axis runs against the blank's (a mirror's) gets the target reversed
-    # along it, so that the map stays close to the flat element's
-    if setup.flips[0]:
-        target, (sx0, sx1) = target[:, ::-1], (sx1, sx0)
-    if setup.flips[1]:
-        target, (sy0, sy1) = target[::-1, :], (sy1, sy0)
     plan = transport_map(source, target, iterations=iterations, warn=False, stretch=stretch)
     rows, cols = shape
     h = 1.0 / max(rows, cols)
