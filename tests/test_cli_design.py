@@ -149,6 +149,8 @@ def test_recover_rejects_bad_levels(tmp_path):
     assert main(["recover", "--levels", "4,x", "--output", str(tmp_path)]) == 2
 
 
+@pytest.mark.slow  # 15 s (the default run's budget); `recover` with a target file and its
+# checks stay in the default run
 def test_recover_without_target_recovers_the_built_in_sea(tmp_path):
     """The built-in sea's caustic is traced by the reference; the transport start
     recovers it (measured: height error 0.036 at 32^2, 0.060 at 24^2, where its
@@ -205,7 +207,11 @@ def test_an_outline_that_is_no_shape_is_one_line_naming_the_flag(tmp_path, capsy
     bow_tie.write_text("-1 -1\n1 1\n1 -1\n-1 1\n")
     words = tmp_path / "words.txt"
     words.write_text("a star\n")
-    for spec in ("hexagon", str(bow_tie), str(words)):
+    crescent = tmp_path / "crescent.png"
+    y, x = np.mgrid[0:64, 0:64] + 0.5
+    drawn = ((x - 32) ** 2 + (y - 32) ** 2 < 32**2) & ((x - 52) ** 2 + (y - 32) ** 2 > 30**2)
+    write_png_linear16(crescent, drawn.astype(float), vmin=0.0, vmax=1.0)
+    for spec in ("hexagon", str(bow_tie), str(words), str(crescent)):
         assert main(["design", "--outline", spec, "--output", str(tmp_path / "out")]) == 2
         err = capsys.readouterr().err
         assert "`--outline`" in err and len(err.strip().splitlines()) == 1, err
@@ -234,3 +240,14 @@ def test_a_mirror_is_designed_described_and_verified_from_its_folder(tmp_path):
     figures = json.loads((out / "verification.json").read_text())
     assert figures["heights"] < 0.1  # the exported heights, traced by the reference
     assert main([*args, "--screen-normal", "ground", "--output", str(tmp_path / "x")]) == 2
+
+
+def test_an_outline_drawn_in_a_picture_is_scaled_to_the_width(tmp_path):
+    from jaxcaustics.cli.design import _outline
+
+    y, x = np.mgrid[0:80, 0:100] + 0.5
+    drawn = ((x - 50) / 40) ** 2 + ((y - 40) / 20) ** 2 <= 1  # an ellipse 80 x 40 pixels
+    picture = tmp_path / "oval.png"
+    write_png_linear16(picture, drawn.astype(float), vmin=0.0, vmax=1.0)
+    outline = _outline(str(picture), 0.08, 0.08)  # the height follows the picture's
+    assert outline.width == pytest.approx(0.08) and outline.height == pytest.approx(0.04, 0.02)

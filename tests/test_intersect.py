@@ -91,6 +91,8 @@ def test_the_tree_finds_the_brute_force_hits(dtype):
     assert 0.3 < hit.mean() < 1.0  # hits and misses both tested
 
 
+@pytest.mark.slow  # 15 s (the default run's budget); the tree against brute force and
+# under traced vertices without vmap stay in the default run
 def test_the_tree_follows_traced_vertices_under_vmap():
     """Two meshes at once (a batch of scenes): one tree each, built under `vmap`."""
     a, b = _blob(), _blob(z=1.2)

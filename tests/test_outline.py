@@ -161,3 +161,57 @@ def test_a_star_lens_is_designed_and_exported_as_a_star(tmp_path):
 def test_a_polygon_the_rings_cannot_follow_is_refused_by_name(vertices):
     with pytest.raises(ValueError, match="`vertices`"):
         jc.Polygon(vertices)
+
+
+def disc_mask(size=64, radius=None, centre=None):
+    y, x = np.mgrid[0:size, 0:size] + 0.5
+    cx, cy = centre or (size / 2, size / 2)
+    return (x - cx) ** 2 + (y - cy) ** 2 <= (radius or size / 2) ** 2
+
+
+def test_a_mask_outline_is_the_shape_it_draws():
+    """A disc drawn as a mask becomes a polygon within half a pixel of the circle, and
+    passes the light of that disc (the mount stops the rest)."""
+    outline = jc.Polygon.from_mask(disc_mask(64), 0.1)
+    v = np.asarray(outline.vertices)
+    radius = np.hypot(v[:, 0], v[:, 1])
+    pixel = 0.1 / 64
+    assert np.all(np.abs(radius - 0.05) < 0.6 * pixel), radius.min()  # simplified to 0.5 px
+    assert outline.width == pytest.approx(0.1, abs=pixel)
+    assert polygon_area(v) == pytest.approx(np.pi * 0.05**2, rel=0.01)
+    # the same star drawn as a mask and given by its vertices passes the same light
+    y, x = (np.mgrid[0:128, 0:128] + 0.5 - 64) / 64 * 0.05
+    drawn = jc.Polygon.from_mask(_inside_star(x, y), 0.1)
+    assert polygon_area(np.asarray(drawn.vertices)) == pytest.approx(polygon_area(star()), rel=0.02)
+
+
+def _inside_star(x, y):
+    from matplotlib.path import Path
+
+    return Path(star()).contains_points(np.c_[x.ravel(), y.ravel()]).reshape(x.shape)
+
+
+def test_a_mask_outline_is_oriented_as_heights_are():
+    """Row 0 of the mask is the blank's y_min, as in a height field: a half disc drawn in
+    the first rows lies at negative y."""
+    mask = disc_mask(64) & (np.arange(64)[:, None] < 32)
+    v = np.asarray(jc.Polygon.from_mask(mask, 0.1).vertices)
+    # its flat side (the mask's middle row) is at y_max: the widest vertices lie there
+    top, bottom = v[v[:, 1] > 0.02, 0], v[v[:, 1] < -0.02, 0]
+    assert np.ptp(top) > 0.09 and np.ptp(bottom) < 0.05, v
+
+
+@pytest.mark.parametrize(
+    ("mask", "words"),
+    [
+        (disc_mask(64) & ~disc_mask(64, 8), "hole"),
+        (disc_mask(64, 10, (16, 16)) | disc_mask(64, 10, (48, 48)), "2 region"),
+        (disc_mask(64) & ~disc_mask(64, 30, (52, 32)), "star-shaped"),  # a crescent
+        (np.zeros((64, 64), bool), "fewer than 4"),
+        (np.ones(64, bool), "2-D"),
+        (np.full((8, 8), 0.5), "boolean"),
+    ],
+)
+def test_a_mask_that_is_no_outline_is_refused_by_name(mask, words):
+    with pytest.raises(ValueError, match=f"`mask`.*{words}"):
+        jc.Polygon.from_mask(mask, 0.1)

@@ -334,6 +334,8 @@ def test_window_for_and_jit(rng):
     assert float(fast(*args, (24, 24), window - 1).sum()) < total - 1e-6
 
 
+@pytest.mark.slow  # 14 s (the default run's budget); one window's flux and its width
+# stay checked in the default run (test_window_for_and_jit)
 def test_tiers_draw_every_triangle_once_with_the_wide_windows_image(rng):
     """Triangles drawn in tiers of narrower windows, by span, give the image (and
     gradient) of one window wide enough for all; a tier draws no more than its

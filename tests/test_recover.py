@@ -112,7 +112,7 @@ def test_each_solver_runs_and_reduces_the_loss(small_case, solver):
     r = solve(small_case[1], solver=solver, throw=False, **SMALL)
     level = r.levels[-1]
     assert r.solver == solver and len(r.results) == 1 and level.steps == 3
-    assert not r.success and "maximum number of steps" in r.messages[0]
+    assert not r.success and "maximum number of solver steps" in r.messages[0]
     assert np.isfinite(level.loss) and level.loss < 0.9 * level.initial_loss, (
         level.loss,
         level.initial_loss,

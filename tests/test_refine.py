@@ -123,6 +123,8 @@ def test_only_methods_with_a_reliable_estimate_are_refined():
         jc.render(blob, "caustics_mapping", tolerance=0.05, refine=True)
 
 
+@pytest.mark.slow  # 21 s (the default run's 8-minute budget); the mesh and lens
+# refinements above keep the level bookkeeping in the default run
 def test_an_ellipsoid_refines_its_tessellation_with_the_photons():
     """With a fixed tessellation its error is common to every photon grid (the estimate
     under-stated the error 1.7 times on a held-out ball, bench_estimate.py): each level

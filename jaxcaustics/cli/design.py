@@ -38,7 +38,7 @@ from ..inverse.problem import (
 )
 from ..inverse.solvers import SOLVER_NAMES
 from ..inverse.verify import verify_heights, verify_lens
-from ..io.images import read_image, write_exr, write_png
+from ..io.images import READ_EXTENSIONS, read_image, write_exr, write_png
 from ..scene.mirror import MirrorScene
 from ..scene.scene import DirectionalLight
 from .flags import (
@@ -144,7 +144,7 @@ def add_design(subparsers) -> None:
         help="the blank's outline: rectangle (default), circle (--width across; a round "
         "lens in a round mount), ellipse (--width by --height), or FILE: a polygon's "
         "vertices, one 'x y' pair a line, star-shaped about the centre of their box, "
-        "scaled to --width",
+        "or a picture (PNG, JPEG, TIFF, EXR) white inside the outline; scaled to --width",
     )
     add_light_angles(design, zenith_deg=0.0, azimuth_deg=0.0)
     design.add_argument(
@@ -269,7 +269,15 @@ def _outline(spec: str, width: float, height: float):
     if not Path(spec).is_file():
         raise ValueError(
             f"`--outline` {spec!r} is neither rectangle, circle, ellipse nor a file of vertices"
+            " or a picture"
         )
+    if Path(spec).suffix.lower() in READ_EXTENSIONS:  # a picture: white inside the blank
+        try:
+            mask = np.asarray(read_image(spec), float) > 0.5  # as the target: row 0, y_min
+            shape = Polygon.from_mask(mask, 1.0)
+        except (ValueError, OSError) as err:
+            raise ValueError(f"`--outline` {spec!r}: {err}") from err
+        return Polygon(np.asarray(shape.vertices) * (width / shape.width))
     try:
         vertices = np.loadtxt(spec, ndmin=2)
     except ValueError as err:

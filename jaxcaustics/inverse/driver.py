@@ -52,6 +52,29 @@ class Run:
     misfit: float = float("nan")
 
 
+class _CallArgs(eqx.Module):
+    """``fn(y, problem) = problem(y)``: a callable problem Module as the driver's `fn`,
+    with the Module itself passed as `args` (its arrays traced, not folded)."""
+
+    def __call__(self, y, problem):
+        return problem(y)
+
+
+class _HalfSquares(eqx.Module):
+    """``0.5 * sum(problem(y)^2)``: a residual as a minimiser's loss, as
+    `optimistix.least_squares` does when given a minimiser."""
+
+    def __call__(self, y, problem):
+        return 0.5 * sum(jnp.sum(c**2) for c in jax.tree_util.tree_leaves(problem(y)))
+
+
+def residual_fn(solver) -> Callable:
+    """The driver's `fn` for a problem Module whose call gives residuals, with the
+    problem as `args`: the residuals for a least-squares solver, half their sum of
+    squares for a minimiser."""
+    return _HalfSquares() if isinstance(solver, optx.AbstractMinimiser) else _CallArgs()
+
+
 def _fixed_point(solver) -> bool:
     return isinstance(solver, optx.AbstractFixedPointSolver)
 
@@ -86,6 +109,8 @@ def _step(fn, solver, y, state, args):
     f_info = getattr(state, "f_info", None)
     if isinstance(getattr(f_info, "f", None), jax.Array) and f_info.f.ndim == 0:
         loss = f_info.f  # a quasi-Newton minimiser's loss at `y` (the accepted point)
+    elif isinstance(f_info, optx.FunctionInfo.ResidualJac):  # Gauss-Newton: at `y` too
+        loss = 0.5 * sum(jnp.sum(c**2) for c in jax.tree_util.tree_leaves(f_info.residual))
     else:
         r = fn(y, args)
         if isinstance(r, jax.Array) and r.ndim == 0:  # a minimiser's loss

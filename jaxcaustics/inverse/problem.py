@@ -21,7 +21,7 @@ import equinox as eqx
 import numpy as np
 
 from .._checks import check_real_array
-from ..scene.outline import check_outline
+from ..scene.outline import check_outline, mask_vertices
 from ..scene.scene import DirectionalLight, PointLight
 
 
@@ -137,6 +137,23 @@ class Polygon(eqx.Module):
             raise ValueError("`vertices` span no area")
         check_outline(v / v.max(axis=0), "vertices")  # star-shaped about the centre
         self.vertices = tuple((float(x), float(y)) for x, y in v)
+
+    @classmethod
+    def from_mask(cls, mask, width, height=None) -> Polygon:
+        """The outline a boolean `mask` over the blank draws: `mask` ``(rows, cols)``,
+        indexed ``[y, x]`` with row 0 at the blank's ``y_min`` (as heights are), spans
+        `width` by `height` metres (default: square pixels). The mask must be one
+        region without holes, star-shaped about the centre of its bounding box; its
+        boundary is traced and simplified to within half a pixel (`mask_vertices`), and
+        the blank is that boundary's bounding box."""
+        v = mask_vertices(mask, "mask")
+        rows, cols = np.shape(mask)
+        width = _length(width, "width")
+        height = width * rows / cols if height is None else _length(height, "height")
+        try:
+            return cls(v * np.array([width / cols, height / rows]))
+        except ValueError as err:
+            raise ValueError(f"`mask`: {err}") from err
 
     @property
     def width(self) -> float:

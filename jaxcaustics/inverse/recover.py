@@ -76,6 +76,7 @@ from ..scene.scene import (
     check_positive_scalar,
 )
 from .camera import camera_blur, deconvolve
+from .driver import iterate, residual_fn
 from .numerics import check_irradiance, resample_heights, weighted_laplacian
 from .recover_result import RecoveryLevel, RecoveryResult
 from .solvers import (
@@ -325,9 +326,10 @@ def recover_surface(
     **Returns:** a `RecoveryResult`.
 
     **Raises:** `ValueError`, naming the argument, for invalid inputs, before any
-    optimisation; with `throw`, Optimistix's runtime error when a level does not
-    converge.
-    """
+    optimisation; with `throw`, a `RuntimeError` naming the level and its
+    `optimistix.RESULTS` message when a level does not converge (after the level's
+    steps: each step is one compiled call of the package's iteration driver,
+    `jaxcaustics.inverse.driver.iterate`, as the designs' are)."""
     # ---- validate everything before compiling anything
     ior = check_ior(ior)
     iors = ior if isinstance(ior, tuple) else (ior,)
@@ -535,14 +537,21 @@ def recover_surface(
             blur=blur,
         )
         initial_loss = float(_loss(problem, u))
-        sol = optx.least_squares(
-            problem,
-            _make_solver(solver, rtol, atol, cg_steps, learning_rate),
+        chosen = _make_solver(solver, rtol, atol, cg_steps, learning_rate)
+        run = iterate(
+            residual_fn(chosen),
+            chosen,
             u,
+            problem,
             max_steps=max_steps,
-            throw=throw,
+            history=[],
         )
-        u, steps, result = sol.value, int(sol.stats["num_steps"]), sol.result
+        if throw and run.result != optx.RESULTS.successful:
+            raise RuntimeError(
+                f"recover_surface: level {index} ({level_shape[0]} x {level_shape[1]}) "
+                f"stopped after {run.steps} steps: {optx.RESULTS[run.result]}"
+            )
+        u, steps, result = run.y, run.steps, run.result
         loss = float(_loss(problem, u))
         level = RecoveryLevel(
             level=index,

@@ -11,12 +11,15 @@ that the aperture is ``[-1, 1]^2``:
   (every ray from the centre leaves it once: a convex polygon about its centre, a star, a
   triangle), counter-clockwise.
 
-Values are static (hashable): `jit` specialises on the outline.
+Values are static (hashable): `jit` specialises on the outline. A boolean mask over the
+blank becomes a polygon by `mask_vertices` (its boundary traced and simplified).
 """
 
 from __future__ import annotations
 
 import numpy as np
+import scipy.ndimage as ndi
+import skimage.measure
 
 OUTLINES = ("rectangle", "ellipse")  # by name; a tuple of vertices is a polygon
 
@@ -93,3 +96,44 @@ def outline_radius(outline, theta: np.ndarray) -> np.ndarray:
         hit = (np.abs(det) > 1e-15) & (t > 0) & (s >= -1e-12) & (s <= 1 + 1e-12)
         radius = np.where(hit, np.minimum(radius, t), radius)
     return radius
+
+
+MASK_SMOOTHING = 0.7  # pixels: the mask's Gaussian blur before its boundary is traced
+MAX_VERTICES = 1024  # `check_outline`'s limit
+
+
+def mask_vertices(mask, name: str = "mask") -> np.ndarray:
+    """The boundary of a boolean `mask` ``(rows, cols)`` (indexed ``[y, x]``, row 0 at
+    ``y_min``, as the library's heights) as polygon vertices ``(N, 2)`` in pixel units
+    ``(x, y)`` from the mask's lower-left corner (so the mask spans ``[0, cols] x [0,
+    rows]``), counter-clockwise, simplified to within half a pixel.
+
+    The mask must be one region without holes, star-shaped about the centre of its
+    bounding box (`check_outline`); anything else is a `ValueError` naming `name`. The
+    boundary is traced with scikit-image's marching squares (`find_contours`) on the mask
+    blurred by `MASK_SMOOTHING` pixels, which rounds the pixel staircase into the shape
+    it draws, then simplified by Douglas-Peucker (`approximate_polygon`)."""
+    m = np.asarray(mask)
+    if m.ndim != 2 or min(m.shape) < 3 or m.dtype == object:
+        raise ValueError(f"`{name}` must be a 2-D boolean mask, 3 x 3 or larger, got {m.shape}")
+    if m.dtype != bool:
+        if not np.issubdtype(m.dtype, np.number) or not np.all(np.isin(m, (0, 1))):
+            raise ValueError(f"`{name}` must be boolean (or 0 and 1)")
+        m = m.astype(bool)
+    if m.sum() < 4:
+        raise ValueError(f"`{name}` holds fewer than 4 pixels inside the outline")
+    soft = ndi.gaussian_filter(np.pad(m, 2).astype(float), MASK_SMOOTHING)
+    _, regions = ndi.label(soft > 0.5)  # counted on what is traced (a pixel-wide
+    _, holes = ndi.label(soft <= 0.5)  # neck joins or parts as the blur has it)
+    if regions != 1 or holes != 1:
+        raise ValueError(
+            f"`{name}` must be one region without holes, got {regions} region(s) and "
+            f"{holes - 1} hole(s)"
+        )
+    (contour,) = skimage.measure.find_contours(soft, 0.5)  # (row, col), closed
+    xy = contour[:, ::-1] - 2.0 + 0.5  # pixel centres at + 0.5; the padding removed
+    for tolerance in (0.5, 1.0, 2.0, 4.0):
+        v = skimage.measure.approximate_polygon(xy, tolerance)[:-1]  # open ring
+        if len(v) <= MAX_VERTICES:
+            break
+    return v
