@@ -138,8 +138,8 @@ def design(
       relative brightness matters (the design is invariant to scaling it).
     - `start`: how the heights are found: `TransportStart()` (default) or
       `PoissonLevels()`, each with its settings.
-    - `finish`: `ImageRefinement()` (default; it runs where the target has dark regions)
-      or ``None``.
+    - `finish`: `ImageRefinement()` (default; it runs where the target has dark regions,
+      and always under leaning light, off a mirror or before a posed screen) or ``None``.
     - `mask`: boolean ``(rows, cols)``: pixels that may receive light; outside it the
       target is dark (up to the start's `floor`).
     - `heights_shape`: the final heights grid ``(rows, cols)``; default: the start's.
@@ -248,7 +248,7 @@ def design_lens(
     start: Literal["transport", "poisson"] = "transport",
     transport_iterations: int = 100,
     warn_error: float = 0.15,
-    refine_steps: int = 8,
+    refine_steps: int | None = None,
     refine_photons: int | None = None,
 ) -> LensDesign:
     """Design the height-field top surface of a caustic lens whose caustic on a screen
@@ -290,9 +290,11 @@ def design_lens(
       names and rules as `recover_surface`: `jaxcaustics.inverse.solvers`);
       the Poisson start's.
     - `transport_iterations`: back-and-forth iterations of the transport at most.
-    - `refine_steps`: the transport start's finish, for targets with dark regions
+    - `refine_steps`: the transport start's finish (`ImageRefinement`; None: 8 under
+      vertical light, 24 under leaning light), for targets with dark regions
       (below 5% of the mean on more than 10% of the screen: there the map jumps and the
-      fitted surface spreads light across the gaps): this many L-BFGS steps on the
+      fitted surface spreads light across the gaps) and for any under leaning light:
+      this many L-BFGS steps on the
       image misfit plus the flux on dark pixels, with the caustic-triangles forward
       model (`refine_photons` photons per side, default 4 per pixel, window 4), moving
       the heights' modes up to two per pixel; kept only if the misfit fell. 0: no
@@ -420,7 +422,7 @@ def lens_problem(
     cg_steps=30,
     rtol=1e-4,
     transport_iterations=100,
-    refine_steps=8,
+    refine_steps=None,
     refine_photons=None,
 ) -> tuple[DesignProblem, TransportStart | PoissonLevels, ImageRefinement | None]:
     """`design_lens`'s keywords as a problem and its strategies (`ValueError` naming the
