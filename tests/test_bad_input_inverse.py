@@ -163,6 +163,7 @@ CAUSTIC = 1.0 + 0.1 * np.sin(np.arange(64.0)).reshape(8, 8)
     [
         (dict(target=np.ones((8, 8), complex)), "target"),
         (dict(target=np.ones((4097, 4096), np.float32)), "target"),
+        (dict(target=0.01 * CAUSTIC), "target"),  # water absorbing 99% of the light
         (dict(heights_shape=(8.0, 8)), "heights_shape"),  # was accepted as (8, 8)
         (dict(heights_shape=(5000, 5000)), "heights_shape"),
         (dict(smoothness="0.1"), "smoothness"),  # strings and bools were numbers

@@ -251,3 +251,42 @@ def test_an_outline_drawn_in_a_picture_is_scaled_to_the_width(tmp_path):
     write_png_linear16(picture, drawn.astype(float), vmin=0.0, vmax=1.0)
     outline = _outline(str(picture), 0.08, 0.08)  # the height follows the picture's
     assert outline.width == pytest.approx(0.08) and outline.height == pytest.approx(0.04, 0.02)
+
+
+def test_an_empty_name_is_refused_not_read_as_the_default(tmp_path, capsys):
+    """An unset shell variable gives '': not the default picture, not the current folder."""
+    out = str(tmp_path / "out")
+    assert main(["design", "", "--output", out]) == 2
+    assert main(["recover", "", "--output", out]) == 2
+    for err in capsys.readouterr().err.strip().splitlines():
+        assert "`TARGET` is empty" in err, err
+    with pytest.raises(SystemExit) as exit_info:
+        main(["design", "--output", ""])
+    assert exit_info.value.code == 2 and "--output" in capsys.readouterr().err
+    assert not (tmp_path / "out").exists()
+
+
+def test_a_folder_named_like_a_bundled_picture_is_not_the_target(tmp_path, monkeypatch):
+    """`--output camera` makes a folder `camera`; the default target is still the
+    picture (a file only when it is a file)."""
+    from jaxcaustics.cli.design import _load_target
+
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "camera").mkdir()
+    image = _load_target(None, 16)
+    assert image.shape == (16, 16) and image.std() > 0
+    (tmp_path / "folder").mkdir()
+    with pytest.raises(ValueError, match="`TARGET` 'folder' is a folder"):
+        _load_target("folder", 16)
+
+
+def test_levels_that_do_not_grow_are_refused_by_name(tmp_path, capsys):
+    import jaxcaustics as jc
+
+    for levels in ((16, 8), (8, 8)):
+        with pytest.raises(ValueError, match="`levels` must increase"):
+            jc.PoissonLevels(levels=levels)
+    args = ["design", "--start", "poisson", "--levels", "16,8", "--output", str(tmp_path)]
+    assert main(args) == 2
+    err = capsys.readouterr().err
+    assert "`--levels` must increase" in err and len(err.strip().splitlines()) == 1, err

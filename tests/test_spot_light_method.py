@@ -116,3 +116,27 @@ def test_mesh_made_with_trimesh_against_the_mesh_reference():
     ref = reference.trace_mesh(scene, 512)
     error = jc.image_error(result.image, ref)
     assert error < 0.1, error
+
+
+def test_a_scene_the_method_does_not_model_is_rendered_with_a_warning():
+    """Spot lights need an object that focuses rays near points (`support` says so); a
+    long rod rendered with them anyway says so instead of passing silently (it was 0.85
+    off the reference, without a word)."""
+    import warnings
+
+    lights = jc.SpotLights(
+        [[0.0, 0.0, 1.0]], [[0.0, 0.0, -1.0]], [[1.0, 0.0, 0.0]],
+        [0.5], [0.0], [0.3], np.ones((1, 8, 8)),
+    )  # fmt: skip
+    rod = jc.EllipsoidScene(
+        jc.Ellipsoid((0.0, 0.0, 1.0), (0.8, 0.1, 0.1)),
+        jc.DirectionalLight.from_angles(20.0),
+        jc.PlaneReceiver((-1.0, 1.0, -1.0, 1.0), (8, 8)),
+        ior=1.5,
+    )
+    assert jc.method_support("spot_lights", rod) is not None
+    with pytest.warns(UserWarning, match="'spot_lights' does not model this scene.*elongated"):
+        jc.render(rod, "spot_lights", lights=lights, samples=1)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # a sphere is modelled: no word
+        jc.render(sphere_scene(shape=(8, 8)), "spot_lights", lights=lights, samples=1)

@@ -38,13 +38,14 @@ from ..inverse.problem import (
 )
 from ..inverse.solvers import SOLVER_NAMES
 from ..inverse.verify import verify_heights, verify_lens
-from ..io.images import READ_EXTENSIONS, read_image, write_exr, write_png
+from ..io.images import READ_EXTENSIONS, check_folder, read_image, write_exr, write_png
 from ..scene.mirror import MirrorScene
 from ..scene.scene import DirectionalLight
 from .flags import (
     MAX_PIXELS,
     MAX_SIDE,
     add_light_angles,
+    folder,
     int_at_least,
     length,
     number,
@@ -61,9 +62,13 @@ def _load_target(spec: str | None, size: int) -> np.ndarray:
     bundled picture by name (default ``camera``), resized to `size` columns."""
     from skimage import data, transform
 
-    name = spec or "camera"
+    name = "camera" if spec is None else spec
+    if not name.strip():
+        raise ValueError("`TARGET` is empty (an unset shell variable?): give a file or a name")
     not_a_picture = f"`TARGET` {name!r} is neither a file nor a scikit-image picture"
-    if Path(name).exists():
+    # a file only when it is a file: a folder named like a bundled picture (the default
+    # `camera` as `--output`) is not read as the target
+    if Path(name).is_file():
         try:
             image = np.asarray(read_image(name), float)
         except ValueError as err:
@@ -76,6 +81,8 @@ def _load_target(spec: str | None, size: int) -> np.ndarray:
         colour = image.ndim == 3 and image.shape[-1] in (3, 4)
         if not (image.ndim == 2 or colour) or min(image.shape[:2]) < 2:
             raise ValueError(f"{not_a_picture} (its data has shape {image.shape})")
+    elif Path(name).exists():
+        raise ValueError(f"`TARGET` {name!r} is a folder, not a picture")
     else:
         raise ValueError(not_a_picture)
     if image.ndim == 3:
@@ -184,7 +191,7 @@ def add_design(subparsers) -> None:
     design.add_argument(
         "--tool-radius", type=length, default=0.001, help="ball-end mill radius (1mm)"
     )
-    design.add_argument("--output", type=Path, default=Path("design"), help="output folder")
+    design.add_argument("--output", type=folder, default=Path("design"), help="output folder")
     design.add_argument(
         "--resume", action="store_true", help="continue from the output folder's checkpoint"
     )
@@ -326,9 +333,7 @@ def describe_folder(out: Path, design, start, finish, *, source: str, max_relief
 
 
 def run_design(args: argparse.Namespace) -> int:
-    out = output_folder(args.output)
-    checkpoint = out / "design.ckpt"
-    resume_checkpoint(checkpoint, args.resume)
+    check_folder(args.output, "--output")  # created once the rest is known good
     target = _load_target(args.target, args.size)
     height = args.height or args.width * target.shape[0] / target.shape[1]
     outline = _outline(args.outline, args.width, height)
@@ -351,6 +356,9 @@ def run_design(args: argparse.Namespace) -> int:
         _screen(args, problem.screen),
         problem.light,
     )
+    out = output_folder(args.output)
+    checkpoint = out / "design.ckpt"
+    resume_checkpoint(checkpoint, args.resume)
     losses: list[float] = []
 
     def step_done(info):

@@ -79,9 +79,19 @@ def zenith(text: str) -> float:
     return value
 
 
+def folder(text: str) -> Path:
+    """An argparse type for `--output`: a folder's name; an empty one (an unset shell
+    variable, which `Path` reads as the current folder) is refused."""
+    if not text.strip():
+        raise argparse.ArgumentTypeError(
+            "an empty folder name (an unset shell variable?) would write into the current "
+            "folder: name one ('.' for the current folder)"
+        )
+    return Path(text)
+
+
 def output_folder(path: Path) -> Path:
     """`--output`, created (with its parents) if missing, else a `ValueError` naming it."""
-
     try:
         check_folder(path, "--output")
         path.mkdir(parents=True, exist_ok=True)

@@ -30,6 +30,7 @@ from .design import add_design
 from .flags import (
     MAX_PIXELS,
     add_light_angles,
+    folder,
     int_at_least,
     number,
     output_folder,
@@ -272,7 +273,7 @@ def _add_render(subparsers) -> None:
     )
     g.add_argument(
         "--output",
-        type=Path,
+        type=folder,
         default=Path("out"),
         metavar="DIR",
         help="output directory, created if needed (default: %(default)s)",

@@ -20,6 +20,7 @@ from ..scene.waves import wave_heights
 from .flags import (
     MAX_BUILT_IN,
     MAX_SIDE,
+    folder,
     int_at_least,
     number,
     output_folder,
@@ -105,7 +106,7 @@ def add_recover(subparsers) -> None:
     recover.add_argument(
         "--steps", type=int_at_least(1), default=50, help="solver steps per level (50)"
     )
-    recover.add_argument("--output", type=Path, default=Path("recover"), help="output folder")
+    recover.add_argument("--output", type=folder, default=Path("recover"), help="output folder")
     recover.add_argument("--resume", action="store_true", help="continue from the checkpoint")
     recover.set_defaults(func=with_flags(run_recover, _RECOVER_FLAGS))
 
@@ -181,6 +182,8 @@ def run_recover(args: argparse.Namespace) -> int:
             f"{MAX_BUILT_IN} samples a side (its caustic is traced by the reference first)"
         )
     for name in args.target:
+        if not name.strip():  # `Path` would read it as the current folder
+            raise ValueError("`TARGET` is empty (an unset shell variable?): give a file or folder")
         if not Path(name).exists():
             raise ValueError(f"`TARGET` {name!r}: no such file or folder")
     out = output_folder(args.output)

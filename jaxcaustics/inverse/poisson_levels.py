@@ -46,12 +46,18 @@ def default_levels(shape: Sequence[int]) -> tuple[int, ...]:
 
 
 def check_levels(levels) -> tuple[int, ...]:
-    """`levels` as a tuple of ints >= 4, or a `ValueError` naming it."""
+    """`levels` as a tuple of strictly increasing ints >= 4 (coarse to fine), or a
+    `ValueError` naming it."""
     if isinstance(levels, (str, bytes)) or not isinstance(levels, (Sequence, np.ndarray)):
         raise ValueError(f"`levels` must be a sequence of ints, got {levels!r}")
     if len(levels) == 0:
         raise ValueError(f"`levels` must be a non-empty sequence of ints >= 4, got {levels!r}")
-    return tuple(check_int(n, "levels", 4) for n in levels)
+    checked = tuple(check_int(n, "levels", 4) for n in levels)
+    if any(b <= a for a, b in zip(checked, checked[1:], strict=False)):
+        raise ValueError(
+            f"`levels` must increase, coarse to fine (each finer than the last), got {levels!r}"
+        )
+    return checked
 
 
 def _nonnegative(value, name: str) -> float:

@@ -39,6 +39,22 @@ def _warn_missed(method: Method, missed) -> None:
         )
 
 
+def _warn_unsupported(method: Method, scene) -> None:
+    """`warnings.warn` when `method` was asked for a scene it does not model
+    (`Method.support` says why: an effect it leaves out, a shape it cannot follow);
+    concrete scenes only (the checks read the scene's values)."""
+    if any(isinstance(v, jax.core.Tracer) for v in jax.tree_util.tree_leaves(scene)):
+        return
+    reason = method.support(scene)
+    if reason:
+        warnings.warn(
+            f"render: method {method.name!r} does not model this scene ({reason}): its "
+            "image can be far from the reference (`jc.method_support` says which methods "
+            "do; `tolerance=` chooses one)",
+            stacklevel=3,
+        )
+
+
 def _warn_limited(limited) -> None:
     """`warnings.warn` when the scene's interface limit dropped more than
     `MISSED_FLUX_WARNING` of the light through the object (concrete values only)."""
@@ -137,6 +153,7 @@ def render(
     stats: dict[str, Any] = {}
     if tolerance is None:
         method = as_method(method, knobs, scene)
+        _warn_unsupported(method, scene)
         result = method(scene)
     elif refine or (refine is None and refinable_method(scene, name)[0] is not None):
         margin = check_number(1.0 if margin is None else margin, "margin", low=1.0)
