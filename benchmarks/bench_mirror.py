@@ -15,12 +15,12 @@ compilation counted):
 
 The design is exported (`export_lens`, the blank `--thickness`); its height map is read
 back from the EXR and traced by the NumPy reference (`trace_mirror`, `trace_lens`) at
-2048^2 and 4096^2 photons: relative L2 and 1 - SSIM at unit mean, the flux fraction on
+4096^2 and 8192^2 photons: relative L2 and 1 - SSIM at unit mean, the flux fraction on
 pixels where the target is below 5% of its mean; the two photon counts' difference
 bounds the reference's noise. Writes ``benchmarks/results/mirror.md`` and
 ``mirror.json``.
 
-    python benchmarks/bench_mirror.py              # all rows (~8 min on 2 cores)
+    python benchmarks/bench_mirror.py              # all rows (~12 min on 2 cores)
     python benchmarks/bench_mirror.py --rows mirror-camera
 """
 
@@ -37,7 +37,7 @@ from bench_outline import judge, target  # noqa: E402
 from harness import once, run_rows  # noqa: E402
 
 NAME = "mirror"
-PHOTONS = (2048, 4096)
+PHOTONS = (4096, 8192)
 THICKNESS = 0.01
 SETTINGS = ("mirror", "mirror-point", "lens-beam")
 ROWS = [f"{s}-{t}" for s in SETTINGS for t in ("camera", "silhouette")]

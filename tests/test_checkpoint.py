@@ -80,3 +80,22 @@ def test_live_rounds_get_a_reporter():
     state, done, interrupted = run_rounds([round_] * 3, 0, progress=False, live=True)
     assert (state, done, interrupted) == (3, 3, False)
     assert seen == [0, 1, 2]
+
+
+def test_a_fresh_run_over_a_checkpoint_says_it_starts_afresh(tmp_path):
+    from jaxcaustics.inverse.checkpoint import check_checkpoint, fingerprint, refuse_another_run
+
+    path = save_checkpoint(tmp_path / "run.ckpt", _initial(), 2)
+    with pytest.warns(UserWarning, match=r"run\.ckpt.*starts afresh.*resume"):
+        check_checkpoint(path, resume=False)
+    check_checkpoint(path, resume=True)  # resuming: nothing to say
+    # a digest a part: the part that differs is named
+    parts = {"target": np.arange(4.0), "options": {"depth": 0.5, "name": "a"}}
+    first = fingerprint(parts)
+    assert first.shape == (2, 8)
+    again = fingerprint({"target": np.arange(4.0), "options": {"depth": 0.6, "name": "a"}})
+    assert np.array_equal(first[0], again[0]) and not np.array_equal(first[1], again[1])
+    save_checkpoint(path, {**_initial(), "fingerprint": first}, 1)
+    with pytest.raises(ValueError, match="another test: its options differ"):
+        refuse_another_run(path, True, {**_initial(), "fingerprint": again}, list(parts), "test")
+    refuse_another_run(path, True, {**_initial(), "fingerprint": first}, list(parts), "test")

@@ -250,3 +250,27 @@ def test_bad_inputs_raise_value_error_naming_the_argument(tmp_path):
         export_lens(scene, tmp_path, formats=("stl", "step"))
     with pytest.raises(ValueError, match="`name`"):
         export_lens(scene, tmp_path, name="../lens")
+
+
+def test_an_export_that_fails_leaves_no_file_behind(tmp_path, monkeypatch):
+    """Every file is staged and renamed into place at the end: a failure on the fourth
+    file (the EXR) leaves neither the first three nor a half-written one, and the
+    files of an earlier export stay as they were."""
+    import jaxcaustics.inverse.export as export
+
+    scene = _lens_scene(_cap(0.02, 0.02, 20), 0.004)
+    out = tmp_path / "out"
+    first = export_lens(scene, out, name="cap")
+    before = {p.name: p.read_bytes() for p in out.iterdir()}
+
+    def full_disk(*args, **kwargs):
+        raise OSError(28, "No space left on device")
+
+    monkeypatch.setattr(export, "write_exr", full_disk)
+    with pytest.raises(OSError, match="No space"):
+        export_lens(_lens_scene(_cap(0.03, 0.02, 20), 0.004), out, name="cap")
+    assert {p.name: p.read_bytes() for p in out.iterdir()} == before
+    with pytest.raises(OSError):
+        export_lens(scene, tmp_path / "fresh", name="cap")
+    assert list((tmp_path / "fresh").iterdir()) == []
+    assert set(first) >= {"stl", "height_exr"}

@@ -82,6 +82,14 @@ def test_frames_are_recovered_in_order_each_warm_started(video, tmp_path):
     assert whole.images.shape == (FRAMES, N, N) and np.all(np.isfinite(whole.images))
     n, m = whole.window
     assert n % 2 == 1 and m % 2 == 0 and n >= 5
+    # a resume with other frames or options is refused, naming what differs (it returned
+    # the first run's heights)
+    with pytest.raises(ValueError, match=r"`checkpoint`.*another recovery: its frames differ"):
+        jc.recover_sequence(frames[::-1], resume=True, **kwargs)
+    with pytest.raises(ValueError, match="its options differ"):
+        jc.recover_sequence(frames, resume=True, **{**kwargs, "rest_depth": 0.6})
+    with pytest.raises(ValueError, match=r"another recovery: .*shape"):
+        jc.recover_sequence(frames[:2], resume=True, **kwargs)
 
 
 def test_bad_frames_are_named_before_anything_runs(video, tmp_path):

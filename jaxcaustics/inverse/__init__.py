@@ -15,8 +15,9 @@ Lens design, a problem stated as data and solved by strategies:
   traced by the NumPy reference.
 
 Water recovery: `recover.py` (`recover_surface`, results in `recover_result.py`), with
-`water_start.py` (the transport start), `water_refine.py` (folding caustics),
-`camera.py` (a photo's blur), `sequence.py` (a video) and `compare_solvers.py`.
+`water_target.py` (the caustic read and checked), `water_start.py` (the transport
+start), `water_refine.py` (folding caustics), `camera.py` (a photo's blur),
+`sequence.py` (a video) and `compare_solvers.py`.
 
 Shared: `driver.py` (the solvers stepped from Python: a loss per step, callbacks, the
 best iterate), `numerics.py` (Poisson solves, Laplacians, resampling, area averages),

@@ -18,6 +18,7 @@ the dtype of the starting state's.
 
 from __future__ import annotations
 
+import hashlib
 import os
 import time
 from collections.abc import Callable, Sequence
@@ -29,6 +30,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from .._warnings import warn_user
 from ..io.images import check_folder
 
 FORMAT = "jaxcaustics-checkpoint-2"
@@ -55,8 +57,53 @@ def check_checkpoint(checkpoint, resume: bool) -> None:
                 f"`checkpoint` {str(path)!r} exists and is not a jaxcaustics checkpoint: "
                 "it is not written over (give another path)"
             )
+        if not resume:  # a fresh run over a half-done one: said, not silent
+            warn_user(
+                f"`checkpoint` {str(path)!r} holds an earlier run: this one starts afresh "
+                "and writes over it (`resume=True`, the CLI's --resume, continues it)"
+            )
     folder = check_folder(path.parent, "checkpoint")  # writable, or can be made
     folder.mkdir(parents=True, exist_ok=True)
+
+
+def fingerprint(parts: dict[str, Any]) -> np.ndarray:
+    """A digest of each of a run's `parts` (what changes its result: its target, frames,
+    options, strategies), ``(len(parts), 8)`` uint32 (SHA-256), kept in its state as
+    ``"fingerprint"`` so that a resume can name the part that differs
+    (`refuse_another_run`). A part is bytes, a NumPy array or any pytree (its structure
+    and its leaves' values)."""
+    rows = []
+    for value in parts.values():
+        if isinstance(value, bytes):
+            data = value
+        elif isinstance(value, np.ndarray):
+            data = f"{value.dtype.str}{value.shape}".encode() + value.tobytes()
+        else:
+            leaves, treedef = jax.tree_util.tree_flatten(value)
+            data = (str(treedef) + repr([np.asarray(x).tolist() for x in leaves])).encode()
+        rows.append(np.frombuffer(hashlib.sha256(data).digest(), np.uint32))
+    return np.stack(rows)
+
+
+def refuse_another_run(checkpoint, resume: bool, state: Any, names: Sequence[str], what: str):
+    """Before resuming from `checkpoint`: a `ValueError` naming the parts (`names`, in
+    `fingerprint`'s order) in which the run that wrote it differs from this one
+    (`state`, with its ``"fingerprint"``), or whose state does not fit this one's."""
+    if not (resume and checkpoint is not None and Path(checkpoint).is_file()):
+        return
+    advice = "remove it, or run without `resume`"
+    written = f"`checkpoint` {str(checkpoint)!r} was written by another {what}"
+    try:
+        saved, _ = load_checkpoint(checkpoint, state)
+    except ValueError as err:
+        raise ValueError(f"{written}: {err}; {advice}") from err
+    differ = [
+        name
+        for name, old, new in zip(names, saved["fingerprint"], state["fingerprint"], strict=True)
+        if not np.array_equal(np.asarray(old), np.asarray(new))
+    ]
+    if differ:
+        raise ValueError(f"{written}: its {', '.join(differ)} differ from this one's; {advice}")
 
 
 def save_checkpoint(path: str | os.PathLike, state: Any, round_index: int) -> Path:

@@ -5,45 +5,37 @@ design resumes where it stopped and ends where an uninterrupted one does.
 
 A checkpoint holds every round's heights and a fingerprint of what the design was made
 from (the target as used, the problem, the strategies, the options that change the
-result); resuming a checkpoint of another design is refused, naming the file.
+result); resuming a checkpoint of another design is refused, naming the file and
+what differs.
 """
 
 from __future__ import annotations
 
 import dataclasses
-import hashlib
 import os
 import time
-from pathlib import Path
 
-import jax
 import numpy as np
 import optimistix as optx
 
-from .checkpoint import load_checkpoint, run_rounds
+from .checkpoint import fingerprint, refuse_another_run, run_rounds
 from .design_setup import Setup
 from .poisson_levels import PoissonLevels
 from .prediction import corrected_goal, predict_caustic, relative_l2
 
+_PARTS = ("target", "problem and strategies", "heights grids", "screen", "initial heights")
+
 
 def _fingerprint(setup: Setup) -> np.ndarray:
-    """A digest of everything that changes a design's rounds: ``(8,)`` uint32."""
-
-    def text(tree) -> str:
-        leaves, treedef = jax.tree_util.tree_flatten(tree)
-        return str(treedef) + repr([np.asarray(x).tolist() for x in leaves])
-
-    parts = [
-        setup.goal.tobytes(),
-        text((setup.problem, setup.start, setup.finish)),
-        repr(setup.shapes),
-        np.asarray(setup.screen, float).tobytes(),
-        b"" if setup.initial is None else np.asarray(setup.initial, float).tobytes(),
-    ]
-    digest = hashlib.sha256()
-    for part in parts:
-        digest.update(part if isinstance(part, bytes) else part.encode())
-    return np.frombuffer(digest.digest(), np.uint32).copy()
+    """A digest of each part of a design that changes its rounds (`_PARTS`)."""
+    parts = (
+        np.asarray(setup.goal),
+        (setup.problem, setup.start, setup.finish),
+        repr(setup.shapes).encode(),
+        np.asarray(setup.screen, float),
+        b"" if setup.initial is None else np.asarray(setup.initial, float),
+    )
+    return fingerprint(dict(zip(_PARTS, parts, strict=True)))
 
 
 def _corrections(setup: Setup) -> int:
@@ -82,14 +74,7 @@ def solve_in_rounds(
         "goal": np.asarray(setup.goal, float),  # the target the last solve aimed at
         "fingerprint": _fingerprint(setup),
     }
-    if resume and checkpoint is not None and Path(checkpoint).is_file():
-        saved, _ = load_checkpoint(checkpoint, state)
-        if not np.array_equal(saved["fingerprint"], state["fingerprint"]):
-            raise ValueError(
-                f"`checkpoint` {str(checkpoint)!r} was written by another design (its "
-                "target, problem, strategies or options differ): remove it, or design "
-                "without `resume`"
-            )
+    refuse_another_run(checkpoint, resume, state, _PARTS, "design")
     reports: list[dict] = []
     shown = [lambda text: None]  # the progress bar's live text while a round runs
 

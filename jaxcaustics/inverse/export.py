@@ -20,6 +20,9 @@ evaluated by `height_and_gradient`: the exported surface is the one the renderer
 from __future__ import annotations
 
 import json
+import os
+import shutil
+import tempfile
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -243,6 +246,23 @@ def export_lens(
         d.mkdir(parents=True, exist_ok=True)
     except OSError as err:
         raise ValueError(f"`directory` {str(d)!r} cannot be created: {err}") from err
+    # every file written into a staging folder beside them, then renamed into place: a
+    # failure (a full disk, a bad mesh) leaves none of them half written or alone
+    staging = Path(tempfile.mkdtemp(prefix=f".{name}.partial-", dir=d))
+    try:
+        staged = _write_export(staging, name, fmts, mesh, z, width, height, surface,
+                               scene_or_surface, report)  # fmt: skip
+        paths = {}
+        for key, path in staged.items():
+            paths[key] = d / path.name
+            os.replace(path, paths[key])
+    finally:
+        shutil.rmtree(staging, ignore_errors=True)
+    return paths
+
+
+def _write_export(d, name, fmts, mesh, z, width, height, surface, scene_or_surface, report):
+    """`export_lens`'s files written into `d`: ``{kind: path}``."""
     paths: dict[str, Path] = {}
     for fmt in fmts:
         paths[fmt] = d / f"{name}.{fmt}"

@@ -63,7 +63,6 @@ import optimistix as optx
 from jaxtyping import Array
 
 from .._checks import check_bool, check_int, check_number, check_real_array, check_shape
-from ..io.images import read_image
 from ..methods.twopass import MAX_AUTO_HALF_WINDOW, auto_window, two_pass
 from ..scene.scene import (
     BOUNDARY_MODES,
@@ -77,7 +76,7 @@ from ..scene.scene import (
 )
 from .camera import camera_blur, deconvolve
 from .driver import iterate, residual_fn
-from .numerics import check_irradiance, resample_heights, weighted_laplacian
+from .numerics import resample_heights, weighted_laplacian
 from .recover_result import RecoveryLevel, RecoveryResult
 from .solvers import (
     MAX_CG_STEPS,
@@ -91,6 +90,7 @@ from .solvers import (
 from .transport import MAX_PIXELS
 from .water_refine import FOLD_BLURS, refine_folds
 from .water_start import flat_shift, transport_start
+from .water_target import check_target_mean, load_target
 
 SOLVERS = SOLVER_NAMES  # (the names `compare_solvers` runs by default)
 WINDOW_MARGIN = 1  # pixels added on each side of the automatic window
@@ -157,44 +157,11 @@ def _loss(problem: _Problem, u: Array) -> Array:
     return half_squares(problem(u))
 
 
-# an unnormalised target's mean must lie here: water moves light, it does not absorb it
-# (a mean of 0.01 was recovered with an image error of 1290), though light can leave a
-# receiver smaller than the water or gather on one larger
-TARGET_MEAN = (0.2, 5.0)
-
-
 def _make_solver(solver, rtol: float, atol: float, cg_steps: int, learning_rate: float):
     return make_solver(solver, rtol=rtol, atol=atol, cg_steps=cg_steps, learning_rate=learning_rate)
 
 
 # ------------------------------------------------------------------ validation
-
-
-def load_target(target, ior) -> np.ndarray:
-    channels = len(ior) if isinstance(ior, tuple) else 0
-    if isinstance(target, (str, os.PathLike)):
-        try:
-            arr = np.asarray(read_image(target, as_gray=channels == 0), dtype=float)
-        except FileNotFoundError as err:
-            raise FileNotFoundError(f"`target`: {err}") from err
-        except ValueError as err:
-            raise ValueError(f"`target`: {err}") from err
-        if channels and arr.ndim == 3 and arr.shape[2] == 4:
-            arr = arr[..., :3]
-    else:
-        arr = check_real_array(target, "target")
-        if (arr.shape[0] * arr.shape[1] if arr.ndim >= 2 else arr.size) > MAX_PIXELS:
-            raise ValueError(f"`target` {arr.shape} has over {MAX_PIXELS} pixels (4096^2)")
-        arr = arr.astype(float)
-    want = 3 if channels else 2
-    if arr.ndim != want or (channels and arr.shape[2] != channels):
-        what = f"(rows, cols, {channels})" if channels else "(rows, cols)"
-        raise ValueError(f"`target` must have shape {what} for ior={ior!r}, got {arr.shape}")
-    if arr.shape[0] < 2 or arr.shape[1] < 2:
-        raise ValueError(f"`target` needs at least 2x2 pixels, got shape {arr.shape}")
-    if arr.shape[0] * arr.shape[1] > MAX_PIXELS:
-        raise ValueError(f"`target` {arr.shape} has over {MAX_PIXELS} pixels (4096^2)")
-    return check_irradiance(arr, "there is no caustic to match")
 
 
 def _result_window(levels, stages, samples_x, channels_y):
@@ -323,7 +290,7 @@ def recover_surface(
       caustic folds) and no `solver` is named.
     - `normalize`: scale the target so its mean is 1 (the mean irradiance of flat
       water); default: True for a file path (whose scale is arbitrary), False for an
-      array (whose mean must then lie in `TARGET_MEAN`).
+      array (whose mean must then lie in `water_target.TARGET_MEAN`).
     - `cg_steps`: conjugate-gradient iterations per Gauss-Newton / Levenberg-Marquardt
       step (a truncated, inexact Newton step).
     - `learning_rate`: Adam's step in scaled height units (``"adam"`` only).
@@ -445,12 +412,8 @@ def recover_surface(
         normalize = isinstance(target, (str, os.PathLike))
     if normalize:
         target_arr = target_arr / target_arr.mean()
-    elif not TARGET_MEAN[0] <= float(target_arr.mean()) <= TARGET_MEAN[1]:
-        raise ValueError(
-            f"`target` has mean {float(target_arr.mean()):.3g}: water refracts the light, it "
-            "neither absorbs nor adds any, so its caustic's mean is near 1 (flat water's "
-            "irradiance); give the irradiance relative to flat water, or normalize=True"
-        )
+    else:
+        check_target_mean(target_arr)
 
     started = time.perf_counter()
     receiver = PlaneReceiver(jnp.asarray(rec_ext, dtype), target_arr.shape[:2])

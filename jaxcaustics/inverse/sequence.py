@@ -34,8 +34,9 @@ from .._checks import check_bool, check_int, check_shape
 from ..io.images import READ_EXTENSIONS
 from ..methods.twopass import auto_window
 from ..scene.scene import check_ior
-from .checkpoint import check_checkpoint, run_rounds
-from .recover import MIN_WINDOW, START_MISFIT, WINDOW_MARGIN, load_target, recover_surface
+from .checkpoint import check_checkpoint, fingerprint, refuse_another_run, run_rounds
+from .recover import MIN_WINDOW, START_MISFIT, WINDOW_MARGIN, recover_surface
+from .water_target import load_target
 
 
 @dataclasses.dataclass(frozen=True)
@@ -223,7 +224,15 @@ def recover_sequence(
         "warm": jnp.zeros(count, bool),
         "seconds": jnp.zeros(count, np.float32),
         "window": jnp.zeros(2, np.int32),
+        "fingerprint": fingerprint(
+            {
+                "frames": np.stack(images).astype(np.float64),
+                "options": {k: options[k] for k in sorted(options)},
+                "warm": np.asarray(warm),
+            }
+        ),
     }
+    refuse_another_run(checkpoint, resume, state, ("frames", "options", "warm"), "recovery")
     state, done, interrupted = run_rounds(
         [frame_round(k) for k in range(count)],
         state,

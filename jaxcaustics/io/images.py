@@ -11,9 +11,10 @@ library's convention ``[row, col] = [y, x]``, with row 0 the *first* row of the 
   ``[vmin, vmax]`` to ``0..65535`` (e.g. a height map for a CNC or a 3-D printer).
 - `read_image`: PNG / JPEG / TIFF as floats in ``[0, 1]``, or EXR as linear floats.
 
-16-bit colour PNGs are written and read with imagecodecs (libpng, compiled: a megapixel
-decodes in 10 ms), which Pillow (under scikit-image and imageio) truncates to 8 bits or
-cannot write; every other format goes through Pillow, tifffile and OpenEXR.
+16-bit colour PNGs are written, and every 16-bit PNG read, with imagecodecs (libpng,
+compiled: a megapixel decodes in 10 ms), which Pillow (under scikit-image and imageio)
+truncates to 8 bits or cannot write; every other format goes through Pillow, tifffile
+and OpenEXR. What a file holds is read from its header first (`probe.py`).
 
 Bad input raises `ValueError` naming the argument; a missing file raises
 `FileNotFoundError` and an unreadable or corrupt file a `ValueError`, both with the path.
@@ -32,6 +33,7 @@ import imagecodecs
 import numpy as np
 
 from .._checks import check_bool
+from .probe import check_picture
 
 __all__ = ["read_exr", "read_image", "write_exr", "write_png", "write_png_linear16"]
 
@@ -296,14 +298,14 @@ def _save_png(p: Path, q: np.ndarray) -> None:
     skimage.io.imsave(str(p), q, check_contrast=False)
 
 
-def _read_png_16bit_color(p: Path) -> np.ndarray | None:
-    """A 16-bit RGB / RGBA PNG as uint16, by imagecodecs (Pillow would truncate it to 8
-    bits); None for any other PNG (Pillow reads those fully)."""
+def _read_png_16bit(p: Path) -> np.ndarray | None:
+    """A 16-bit PNG (gray, gray + alpha, RGB, RGBA) as uint16, by imagecodecs (Pillow
+    truncates the colour ones to 8 bits, and gray + alpha to 8-bit RGBA); None for any
+    other PNG (Pillow reads those fully)."""
     data = p.read_bytes()
     if data[:8] != _PNG_SIGNATURE or data[12:16] != b"IHDR" or len(data) < 26:
         return None
-    depth, color = data[24], data[25]
-    if depth != 16 or color not in (2, 6):
+    if data[24] != 16:
         return None
     return np.asarray(imagecodecs.png_decode(data))
 
@@ -441,8 +443,8 @@ def read_image(path, *, as_gray: bool = True) -> np.ndarray:
     as_gray : bool
         If True, return a 2-D array: RGB(A) is converted to luminance with the Rec. 709
         weights (``0.2125 R + 0.7154 G + 0.0721 B``; alpha is dropped), gray + alpha
-        keeps the gray; an EXR must have 1, 3 (RGB) or 4 (RGBA) channels, others raise
-        a `ValueError`. If False, the channels are returned as stored.
+        keeps the gray; an EXR must have one channel, or R, G, B (and A) by name.
+        If False, the channels are returned as stored.
 
     Returns
     -------
@@ -456,11 +458,16 @@ def read_image(path, *, as_gray: bool = True) -> np.ndarray:
     FileNotFoundError
         If `path` does not exist.
     ValueError
-        For an unknown extension or an unreadable or corrupt file.
+        For an unknown extension, an unreadable or corrupt file, or one that is not a
+        single picture (`jaxcaustics.io.probe.check_picture`, from the header, before
+        any pixel is decoded): several pages or frames, over 8192^2 pixels, or (with
+        `as_gray`) channels that are not gray, gray + alpha, RGB or RGBA (an EXR's by
+        name: Y, or R, G, B and A).
     """
     p = _as_path(path, READ_EXTENSIONS)
     as_gray = check_bool(as_gray, "as_gray")
     _check_input_file(p)
+    check_picture(p, as_gray=as_gray)  # from its header: one picture, sized, its channels
     if p.suffix.lower() == ".exr":
         img = read_exr(p)
     else:
@@ -469,7 +476,7 @@ def read_image(path, *, as_gray: bool = True) -> np.ndarray:
         import skimage.util
 
         try:
-            raw = _read_png_16bit_color(p) if p.suffix.lower() == ".png" else None
+            raw = _read_png_16bit(p) if p.suffix.lower() == ".png" else None
             if raw is None and p.suffix.lower() in (".tif", ".tiff"):
                 raw = skimage.io.imread(str(p))  # tifffile
             elif raw is None:
