@@ -487,3 +487,20 @@ def test_distance_map_visibility_needs_a_mesh_scene():
         jc.caustic_triangles(lens_scene(np.zeros((4, 4))), visibility="distance_map")
     with pytest.raises(ValueError, match="visibility"):
         jc.caustic_triangles(lens_scene(np.zeros((4, 4))), visibility="cube")
+
+
+def test_the_auto_window_fits_the_receiver():
+    """Photons a few pixels apart on a 4 x 4 screen: the window that holds their
+    triangles would be wider than the screen, and is capped one past its side (an 8 x 8
+    design under 85-degree light asked for 16 and failed after its whole design)."""
+    from jaxcaustics.methods.triangles.method import trace_photons, triangle_window, triangles_image
+
+    scene = jc.LensScene(
+        jc.HeightField(np.zeros((8, 8)), (-0.05, 0.05, -0.05, 0.05), "clamp"),
+        jc.DirectionalLight.from_angles(0.0),
+        jc.PlaneReceiver((-0.005, 0.005, -0.005, 0.005), (4, 4)),
+    )
+    photons = trace_photons(scene, (9, 9))
+    window = triangle_window(photons, scene.receiver)
+    assert window == 5
+    triangles_image(photons, scene.receiver, window=window)  # taken as it is

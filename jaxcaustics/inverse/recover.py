@@ -560,14 +560,18 @@ def recover_surface(
     image = np.asarray(camera_blur(rendered.image, blur, boundary))
     heights = np.asarray(u * height_scale)
     misfit = image - target_arr
+    # the target's contrast; a target with almost none (flat water) is its own scale
+    # (its contrast, 0, gave 3.7e+294)
     contrast = np.linalg.norm(target_arr - target_arr.mean())
+    if not contrast > 1e-3 * np.linalg.norm(target_arr):
+        contrast = np.linalg.norm(target_arr)
     return RecoveryResult(
         heights=heights - heights.mean(),
         image=image,
         target=target_arr,
         loss=levels[-1].loss if levels else float(np.mean(misfit**2)),
         image_rmse=float(np.sqrt(np.mean(misfit**2))),
-        image_error=float(np.linalg.norm(misfit) / max(contrast, 1e-300)),
+        image_error=float(np.linalg.norm(misfit) / contrast),
         missed_flux_fraction=np.asarray(rendered.missed_flux_fraction),
         levels=tuple(levels),
         solver="none" if solver is None else solver_name(solver),

@@ -53,7 +53,8 @@ class RecoveryResult:
       image-space solve: the image misfit's mean square).
     - `image_rmse`: root mean square of ``image - target``.
     - `image_error`: ``||image - target|| / ||target - mean(target)||``, the misfit
-      relative to the target's contrast.
+      relative to the target's contrast; for a target with almost no contrast (below
+      1e-3 of ``||target||``: flat water's) ``||image - target|| / ||target||``.
     - `missed_flux_fraction`: per channel, light of the final surface that fell outside
       the gather window (should be ~0).
     - `levels`: a `RecoveryLevel` per coarse-to-fine level.

@@ -60,11 +60,19 @@ def relative_l2(image, target, mask=None) -> float:
 
 def solid_scene(scene: LensScene, *, samples=None) -> MeshScene:
     """The exported solid of `scene`'s lens, in metres at its place above the screen, as a
-    `MeshScene` with the same light, screen, index and Fresnel setting."""
+    `MeshScene` with the same light, screen, index and Fresnel setting. The solid is
+    exported unrotated (`export_lens`); a field's `rotation` turns it back about the
+    centre of its extent, as the lens sits in its holder."""
 
     solid = lens_solid(scene, samples=samples)  # millimetres, origin at the corner
-    x0, _, y0, _ = (float(v) for v in np.asarray(scene.surface.extent))
+    x0, x1, y0, y1 = (float(v) for v in np.asarray(scene.surface.extent))
     vertices = np.asarray(solid.vertices) / 1000.0 + [x0, y0, float(scene.screen_distance)]
+    angle = float(np.asarray(scene.surface.rotation))
+    if angle != 0.0:  # (it was traced unrotated: 0.69 off a lens that met its target)
+        cx, cy = 0.5 * (x0 + x1), 0.5 * (y0 + y1)
+        c, s = math.cos(angle), math.sin(angle)
+        dx, dy = vertices[:, 0] - cx, vertices[:, 1] - cy
+        vertices = np.c_[cx + c * dx - s * dy, cy + s * dx + c * dy, vertices[:, 2]]
     return MeshScene(
         Mesh(vertices, np.asarray(solid.faces)),
         scene.light,
@@ -102,14 +110,15 @@ class Verification:
     - `nominal`: the exported solid, as specified.
     - `screen_near`, `screen_far`: the screen moved towards / away from the lens by
       `screen_shift` of the screen distance.
-    - `sun`: lit by a disc of the Sun's angular size (0.53 degrees) instead of a point.
+    - `sun`: lit by a disc of the Sun's angular size (0.53 degrees) instead of a point;
+      None for a design under a point light (the Sun is not its light).
     - `image`: the nominal reference image.
     """
 
     nominal: float
     screen_near: float
     screen_far: float
-    sun: float
+    sun: float | None
     screen_shift: float
     image: np.ndarray = dataclasses.field(repr=False)
 
@@ -120,7 +129,11 @@ class Verification:
             f"  as designed            {self.nominal:.4f}\n"
             f"  screen {pct} nearer      {self.screen_near:.4f}\n"
             f"  screen {pct} farther     {self.screen_far:.4f}\n"
-            f"  Sun ({SUN_DIAMETER_DEG} deg disc)   {self.sun:.4f}"
+            + (
+                f"  Sun ({SUN_DIAMETER_DEG} deg disc)   {self.sun:.4f}"
+                if self.sun is not None
+                else "  Sun                    not its light (a point light)"
+            )
         )
 
 
@@ -208,7 +221,7 @@ def verify_lens(
             reference.trace_mesh(solid_scene(lens, samples=samples), photons_per_axis), target, mask
         )
 
-    sun_error = float("nan")
+    sun_error = None  # a point light's design: no figure (it was NaN)
     if isinstance(scene.light, DirectionalLight):
         per_axis = max(16, int(photons_per_axis / math.sqrt(sun_samples)))
         images = []

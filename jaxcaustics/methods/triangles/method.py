@@ -358,7 +358,9 @@ def _check_window(window, receiver: PlaneReceiver) -> int:
 
 def triangle_window(photons: Photons, receiver: PlaneReceiver, flux_fraction: float = 0.999) -> int:
     """The smallest triangle window (pixels) that holds whole the triangles carrying
-    `flux_fraction` of the valid flux, capped at `MAX_AUTO_WINDOW`.
+    `flux_fraction` of the valid flux, capped at `MAX_AUTO_WINDOW` and at one past the
+    receiver's larger side (a wider window reaches no more pixels, and `triangles_image`
+    takes no wider one: an 8 x 8 design under 85-degree light asked for 16).
 
     Near silhouettes and folds a few triangles stretch over huge areas (neighbouring
     photons that part ways); sizing the window for them would cost ``window^2`` per
@@ -368,7 +370,7 @@ def triangle_window(photons: Photons, receiver: PlaneReceiver, flux_fraction: fl
     _check_photons_receiver(photons, receiver)
     flux_fraction = check_number(flux_fraction, "flux_fraction", low=0.0, high=1.0, low_open=True)
     by_flux, _ = _extent_histogram_jit(photons, receiver.extent, receiver.shape)
-    return _window_from_histogram(by_flux, flux_fraction)
+    return min(_window_from_histogram(by_flux, flux_fraction), max(receiver.shape) + 1)
 
 
 def triangles_image(
