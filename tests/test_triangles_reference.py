@@ -78,6 +78,8 @@ def test_triangles_agree_with_reference_on_a_glass_sphere():
     assert image.sum() == pytest.approx(ref.sum(), rel=0.01)
 
 
+@pytest.mark.slow  # 10 s (the default run's budget): a comparison, not a check of the
+# method, whose agreement with the reference stays in the default run
 @pytest.mark.parametrize("photons", [65, 129])
 def test_triangles_beat_the_best_splat_radius_at_equal_photon_count(photons):
     """Splatting the same photons with the best of a range of radii is still worse:

@@ -77,6 +77,8 @@ def test_agrees_with_reference_on_smooth_surfaces(surface, tolerance, zenith):
     assert periodic_error(jc.render(scene), ref) < tolerance
 
 
+@pytest.mark.slow  # 8 s (the default run's 8-minute budget); the defaults' accuracy, S = 2
+# included, stays checked in the default run
 def test_supersampling_tightens_the_error():
     """S x S samples per pixel, each spread over its own 1/S of the pixel's side,
     remove the one-sample-per-pixel ripple and converge to the binned irradiance.
