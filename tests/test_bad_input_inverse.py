@@ -101,6 +101,7 @@ SPEC = dict(width=0.1, height=0.1, thickness=0.02, screen_distance=0.5, levels=(
         (dict(transport_iterations=10**12), "transport_iterations"),
         (dict(refine_steps=2.0), "refine_steps"),
         (dict(predict_photons=10**6), "predict_photons"),  # 10^12 photons after the design
+        (dict(predict_photons=3000), "predict_photons"),  # over the trace's 1 GiB, after it
         (dict(ior=np.inf), "ior"),
         (dict(width=[0.1]), "width"),
     ],

@@ -704,3 +704,19 @@ def test_a_minimiser_object_designs_on_the_half_sum_of_squares():
         d = design_lens(blob(), **SPEC, **{**SMALL, "max_steps": 5}, solver=optx.BFGS(1e-6, 1e-9))
     history = d.loss_history
     assert len(history) >= 2 and history[-1] < history[0]
+
+
+def test_the_default_prediction_fits_one_trace():
+    """4 photons a pixel side, or as many as one trace's memory limit takes: a 512-pixel
+    target's 2049^2 needed 1025 MiB of the 1024 and failed after its whole design (a
+    4 x 512 banner too)."""
+    import jax.numpy as jnp
+
+    from jaxcaustics.inverse.lens_setup import predict_photons_default
+    from jaxcaustics.methods.triangles.method import band_bytes
+
+    dtype = jnp.result_type(float)  # the default's: float32, float64 under x64
+    assert predict_photons_default((128, 128)) == 513
+    n = predict_photons_default((4, 512))
+    assert n < 2049 and band_bytes(n * n, 1, dtype) <= 1 << 30
+    assert band_bytes((n + 1) ** 2, 1, dtype) > 1 << 30

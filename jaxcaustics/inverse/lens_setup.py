@@ -12,7 +12,13 @@ import time
 import jax.numpy as jnp
 import numpy as np
 
-from .._checks import check_int, check_number, check_real_array, check_shape
+from .._checks import (
+    DEFAULT_MEMORY_LIMIT,
+    check_int,
+    check_number,
+    check_real_array,
+    check_shape,
+)
 from ..methods.triangles.method import band_bytes
 from ..scene.scene import DirectionalLight, HeightField, LensScene, PlaneReceiver, PointLight
 from .design_setup import Setup
@@ -138,8 +144,30 @@ def _check_design_memory(shape, oversample: int, extra: int, photons: int = 0) -
 
 
 def predict_photons_default(target_shape) -> int:
-    """The predicted caustic's photons per side by default: 4 per pixel side."""
-    return 4 * max(target_shape) + 1
+    """The predicted caustic's photons per side by default: 4 per pixel side, or as
+    many as one trace fits in the default `memory_limit` (a 512-pixel target's 2049^2
+    photons need 1025 MiB: 2047 then; the design failed after all its work)."""
+    return min(4 * max(target_shape) + 1, _photons_that_fit())
+
+
+def _photons_that_fit() -> int:
+    """The most photons per side whose trace fits in `DEFAULT_MEMORY_LIMIT`."""
+    dtype = jnp.result_type(float)
+    n = int(np.sqrt(DEFAULT_MEMORY_LIMIT / band_bytes(1, 1, dtype))) + 1
+    while n > 2 and band_bytes(n * n, 1, dtype) > DEFAULT_MEMORY_LIMIT:
+        n -= 1
+    return n
+
+
+def _check_predict_photons(n: int) -> None:
+    """`predict_photons` given: its trace must fit in the default `memory_limit`,
+    checked before the design (it failed after it, naming `grid`)."""
+    most = _photons_that_fit()
+    if n > most:
+        raise ValueError(
+            f"`predict_photons` {n}: its {n}^2 photons, traced at once, need more than the "
+            f"{DEFAULT_MEMORY_LIMIT / 2**20:.0f} MiB a trace may take; at most {most}"
+        )
 
 
 def _check_initial(initial) -> None:
@@ -187,6 +215,7 @@ def prepare(
         raise ValueError("`target` is zero everywhere inside `mask`: there is no light to place")
     if predict_photons is not None:
         predict_photons = check_int(predict_photons, "predict_photons", 2)
+        _check_predict_photons(predict_photons)
     if initial is not None:
         _check_initial(initial)
     if max_relief is not None:
