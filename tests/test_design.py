@@ -2,6 +2,7 @@
 invariance, masks."""
 
 import json
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -414,21 +415,13 @@ def test_edges_under_leaning_light_get_a_bevel_and_the_band_it_takes_no_transpor
     the surface beyond the aperture (a ring `-h_edge * tan(lean)` wide): the edge rises
     to the rest plane over that width plus a cell, and the transport leaves out the
     band whose rays reach the bevel. Vertical light needs none."""
-    from types import SimpleNamespace
 
     from jaxcaustics.inverse.transport_start import _edge_bevel
 
     cell = 2.0 / 64
     h = np.full((64, 64), -0.1)
     h[32, 32] = 0.0
-    setup = SimpleNamespace(
-        aperture=(-1.0, 1.0, -1.0, 1.0),
-        screen_distance=7.0,
-        thickness=0.5,
-        top=7.5,
-        is_mirror=False,
-    )
-    setup.light = DirectionalLight.from_angles(0.0)
+    setup = _bevel_setup(0.5, 0.0)
     weight, keep, k = _edge_bevel(setup, h)
     assert k == 0 and not weight.any() and np.all(keep == 1.0)
 
@@ -498,20 +491,12 @@ def test_the_image_refinement_moves_only_modes_its_photons_resolve():
 def test_a_ring_wider_than_the_bevel_can_take_warns():
     """A relief so deep under leaning light that the ring of rays meeting the surface
     beyond the aperture is wider than a quarter of it: the bevel stops there and says so."""
-    from types import SimpleNamespace
 
     from jaxcaustics.inverse.transport_start import _edge_bevel
 
     h = np.full((16, 16), -2.0)
     h[8, 8] = 0.0
-    setup = SimpleNamespace(
-        aperture=(-1.0, 1.0, -1.0, 1.0),
-        screen_distance=7.0,
-        thickness=2.5,
-        top=9.5,
-        is_mirror=False,
-    )
-    setup.light = DirectionalLight.from_angles(20.0)  # ring 0.73 m: 5.8 cells of 0.125 m
+    setup = _bevel_setup(2.5, 20.0)  # ring 0.73 m: 5.8 cells of 0.125 m
     with pytest.warns(UserWarning, match="more than the bevel's 4"):
         weight, keep, k = _edge_bevel(setup, h)
     # the band: the 4 bevel cells and the 5.8-cell ring inwards of them
@@ -720,3 +705,16 @@ def test_the_default_prediction_fits_one_trace():
     n = predict_photons_default((4, 512))
     assert n < 2049 and band_bytes(n * n, 1, dtype) <= 1 << 30
     assert band_bytes((n + 1) ** 2, 1, dtype) > 1 << 30
+
+
+def _bevel_setup(thickness: float, zenith_deg: float) -> SimpleNamespace:
+    """What `_edge_bevel` reads of a setup: a 2 m square lens, its bottom face 7 m above
+    the ground, `thickness` thick, under collimated light `zenith_deg` from vertical."""
+    return SimpleNamespace(
+        aperture=(-1.0, 1.0, -1.0, 1.0),
+        screen_distance=7.0,
+        thickness=thickness,
+        top=7.0 + thickness,
+        is_mirror=False,
+        light=DirectionalLight.from_angles(zenith_deg),
+    )
