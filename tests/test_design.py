@@ -673,7 +673,9 @@ def test_a_heights_grid_too_large_for_the_machine_is_refused_before_any_work(mon
     monkeypatch.setattr(lens_setup.os, "sysconf", lambda name: pages[name])
     with pytest.raises(ValueError, match="levels"):
         design_lens(blob(), **SPEC, levels=(4096,), start="poisson")
-    with pytest.raises(ValueError, match="target's size"):
+    # a 4096^2 target: its heights grid is the cost (the prediction's photons are capped
+    # at one trace's memory limit, 1 GiB: `test_the_default_prediction_fits_one_trace`)
+    with pytest.raises(ValueError, match=r"heights grid \(4096, 4096\).*`heights_shape`"):
         design_lens(np.ones((4096, 4096)), **SPEC)
     lens_setup._check_design_memory((1024, 1024), 2, 0)  # 6.1 GiB: fine
     with pytest.raises(ValueError, match="GiB"):  # with the refinement's 4 GiB: not

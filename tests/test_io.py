@@ -6,6 +6,7 @@ import zlib
 import numpy as np
 import pytest
 import skimage.io
+import tifffile
 
 from jaxcaustics.io.images import (
     _read_png_16bit,
@@ -266,7 +267,9 @@ def test_read_image_png_gray_and_rgb(tmp_path):
 
 def test_read_image_tiff_and_jpeg(tmp_path):
     ramp = np.linspace(0, 65535, 20).astype(np.uint16).reshape(5, 4)
-    skimage.io.imsave(tmp_path / "r.tif", ramp, check_contrast=False)
+    # gray, said so: scikit-image's imsave writes an array whose last side is 3 or 4 as
+    # one row of RGB(A) pixels, which is what its header then says
+    tifffile.imwrite(tmp_path / "r.tif", ramp, photometric="minisblack")
     np.testing.assert_allclose(read_image(tmp_path / "r.tif"), ramp / 65535.0, atol=1e-7)
     flat = np.full((8, 8), 128, np.uint8)
     skimage.io.imsave(tmp_path / "f.jpg", flat, check_contrast=False)

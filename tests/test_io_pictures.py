@@ -8,7 +8,7 @@ import imagecodecs
 import numpy as np
 import pytest
 import tifffile
-from hypothesis import HealthCheck, given, settings
+from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 
 from jaxcaustics.io.images import read_image, write_exr
@@ -68,6 +68,9 @@ def pictures(draw):
     max_examples=60, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture]
 )
 @given(picture=pictures(), as_gray=st.booleans())
+@example(  # found by Hypothesis: a 3 x 1 TIFF of two samples was read as 2 x 3
+    picture=("tiff8", np.arange(6, dtype=np.uint8).reshape(1, 3, 1, 2), None), as_gray=False
+)
 def test_a_file_is_read_as_written_or_refused_naming_it(tmp_path, picture, as_gray):
     kind, data, names = picture
     pages, rows, cols, channels = data.shape

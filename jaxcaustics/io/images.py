@@ -33,7 +33,7 @@ import imagecodecs
 import numpy as np
 
 from .._checks import check_bool
-from .probe import check_picture
+from .probe import check_picture, read_tiff_page
 
 __all__ = ["read_exr", "read_image", "write_exr", "write_png", "write_png_linear16"]
 
@@ -478,7 +478,7 @@ def read_image(path, *, as_gray: bool = True) -> np.ndarray:
         try:
             raw = _read_png_16bit(p) if p.suffix.lower() == ".png" else None
             if raw is None and p.suffix.lower() in (".tif", ".tiff"):
-                raw = skimage.io.imread(str(p))  # tifffile
+                raw = read_tiff_page(p)  # (scikit-image's reader turned a 3 x 1 x 2 round)
             elif raw is None:
                 # Pillow explicitly: imageio would otherwise try every legacy plugin on
                 # a corrupt file.

@@ -16,6 +16,7 @@ is read directly, as Pillow does.
 from __future__ import annotations
 
 import dataclasses
+import math
 import struct
 from pathlib import Path
 
@@ -26,6 +27,7 @@ _PNG_CHANNELS = {0: 1, 2: 3, 3: 3, 4: 2, 6: 4}
 _PIL_CHANNELS = {"1": 1, "L": 1, "P": 3, "I": 1, "F": 1, "LA": 2, "RGB": 3, "RGBA": 4}
 _PIL_CHANNELS |= {"I;16": 1, "I;16B": 1, "I;16L": 1, "PA": 4}  # CMYK, YCbCr, ...: 0
 _EXR_COLOUR = (["R", "G", "B"], ["R", "G", "B", "A"])
+_TIFF_PLANE = "YXS"  # tifffile's axes of one picture: rows, columns, samples
 
 
 @dataclasses.dataclass(frozen=True)
@@ -80,19 +82,31 @@ def _probe_tiff(p: Path) -> ImageHeader:
     import tifffile
 
     with tifffile.TiffFile(p) as tif:
-        pages = len(tif.pages)
-        page = tif.pages.first
-        shape = tuple(int(n) for n in page.shape)
-        separate = page.planarconfig == tifffile.PLANARCONFIG.SEPARATE
-    if len(shape) == 2:
-        rows, cols, channels = *shape, 1
-    elif len(shape) == 3 and separate:
-        channels, rows, cols = shape
-    elif len(shape) == 3:
-        rows, cols, channels = shape
-    else:
-        raise ValueError(f"a TIFF page of shape {shape}")
-    return ImageHeader(rows, cols, channels, pages)
+        series = tif.series[0]
+        size = dict(zip(series.axes, (int(n) for n in series.shape), strict=True))
+        stacked = math.prod(n for a, n in size.items() if a not in _TIFF_PLANE)
+        pages = max(len(tif.pages), stacked)
+    return ImageHeader(size.get("Y", 1), size.get("X", 1), size.get("S", 1), pages)
+
+
+def read_tiff_page(p: Path):
+    """The picture of the TIFF `p` as ``(rows, cols)`` or ``(rows, cols, channels)``,
+    laid out by its first series' axes (tifffile: ``Y`` rows, ``X`` columns, ``S``
+    samples), so that no axis of size 1 is squeezed or taken for another (scikit-image's
+    reader turned a 3 x 1 x 2 image into 2 x 3); other axes must be of size 1
+    (`check_picture` refuses stacks first)."""
+    import numpy as np
+    import tifffile
+
+    with tifffile.TiffFile(p) as tif:
+        series = tif.series[0]
+        data, axes = np.asarray(series.asarray()), series.axes
+    for axis in _TIFF_PLANE:
+        if axis not in axes:
+            data, axes = data[..., None], axes + axis
+    data = np.moveaxis(data, [axes.index(a) for a in _TIFF_PLANE], [-3, -2, -1])
+    data = data.reshape(data.shape[-3:])
+    return data[..., 0] if data.shape[-1] == 1 else data
 
 
 def _probe_exr(p: Path) -> ImageHeader:
