@@ -20,6 +20,8 @@ import math
 import struct
 from pathlib import Path
 
+import numpy as np
+
 MAX_READ_PIXELS = 8192 * 8192  # a 24-megapixel photo passes; 20000^2 does not
 _PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 # PNG colour types -> channels as decoded (a palette: RGB, or RGBA with transparency)
@@ -95,7 +97,6 @@ def read_tiff_page(p: Path):
     samples), so that no axis of size 1 is squeezed or taken for another (scikit-image's
     reader turned a 3 x 1 x 2 image into 2 x 3); other axes must be of size 1
     (`check_picture` refuses stacks first)."""
-    import numpy as np
     import tifffile
 
     with tifffile.TiffFile(p) as tif:
