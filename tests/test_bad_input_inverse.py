@@ -18,6 +18,7 @@ NaN target and ``sun_samples=0`` (test_verify.py); ``design --size 0``
 import functools
 import re
 import types
+import warnings
 
 import jax
 import numpy as np
@@ -525,14 +526,44 @@ def test_cli_refuses_in_one_line(out, capsys, monkeypatch, argv, flag):
     assert not _COMPILED, f"compiled before refusing: {_COMPILED}"
 
 
-def test_cli_names_flags_in_library_errors():
-    """A library error that reaches the command names its flag (`levels` -> `--levels`)."""
+def test_cli_render_water_names_waves_through_the_ground(capsys, monkeypatch, tmp_path):
+    """Waves deeper than the water were refused naming `surface` and `rest_depth`, which
+    `render water` does not take; now `--amplitude` and `--depth`, before rendering (the
+    sea's heights, which the check needs, are drawn first: they compile)."""
+
+    def started(*args, **kwargs):
+        raise AssertionError("rendered before the waves were checked")
+
+    monkeypatch.setattr(jc, "render", started)
+    code = main(["render", "water", "--amplitude", "100", "--output", str(tmp_path)])
+    err = capsys.readouterr().err
+    assert code == 2 and "Traceback" not in err, err
+    assert re.search(r"`--amplitude` 100 m.*`--depth` 1 m", err.strip().splitlines()[-1])
+
+
+def test_cli_names_flags_in_library_errors_and_warnings():
+    """A library error or warning that reaches the command names its flag (`levels` ->
+    `--levels`), once where two arguments share it, and the command's words for the
+    library's phrases."""
+    flags = {"levels": "--levels", "heights_shape": "--levels", "solver": "--solver"}
+    phrases = {"the target's size": "`--size`"}
 
     def run(args):
-        raise ValueError("the design needs 25 GiB: lower `levels` (or `heights_shape`)")
+        warnings.warn("the `solver` diverged", stacklevel=1)
+        raise ValueError("lower `levels` or `heights_shape` (set by the target's size)")
 
-    with pytest.raises(ValueError, match="lower `--levels` \\(or `--levels`\\)"):
-        with_flags(run, {"levels": "--levels", "heights_shape": "--levels"})(None)
+    shown = []
+    with warnings.catch_warnings():
+        warnings.showwarning = lambda message, *a, **k: shown.append(str(message))
+        with pytest.raises(ValueError, match=r"^lower `--levels` \(set by `--size`\)$"):
+            with_flags(run, flags, phrases)(None)
+    assert shown == ["the `--solver` diverged"]
+
+    def fail(args):
+        raise RuntimeError("level 0: the `solver` failed")
+
+    with pytest.raises(RuntimeError, match="the `--solver` failed"):
+        with_flags(fail, flags)(None)
 
 
 @pytest.mark.parametrize("solve", ["design", "recover"])
@@ -547,3 +578,39 @@ def test_runaway_conjugate_gradient_steps_are_refused(solve):
             light = jc.DirectionalLight([0.0, 0.0, -1.0])
             jc.recover_surface(target, extent=(0, 1, 0, 1), rest_depth=0.5, light=light,
                                cg_steps=10**9)  # fmt: skip
+
+
+def test_a_target_no_water_that_deep_makes_is_refused_naming_it(monkeypatch):
+    """A caustic of one bright pixel on black asks for waves deeper than the water: it
+    was recovered for 36 s and then refused as the internal "`surface` reaches the
+    ground"; now the transport start's heights are checked, before the fold fit."""
+    import jaxcaustics.inverse.recover as recover_module
+
+    def fold_fit(*args, **kwargs):
+        raise AssertionError("the fold fit ran before the heights were checked")
+
+    monkeypatch.setattr(recover_module, "refine_folds", fold_fit)
+    target = np.zeros((16, 16))
+    target[5, 5] = 1.0
+    light = jc.DirectionalLight([0.0, 0.0, -1.0])
+    with pytest.raises(ValueError, match="`target` cannot be made.*`rest_depth` 0.5 m"):
+        jc.recover_surface(target, extent=(0, 1, 0, 1), rest_depth=0.5, light=light,
+                           normalize=True)  # fmt: skip
+
+
+def test_a_runaway_solver_keeps_the_level_start_and_says_so():
+    """Gradient descent with a step of 1e9 sends the heights through the ground and then
+    to NaN: reported as impossible geometry before; now a warning naming the solver, and
+    the level's start heights (finite) in the result."""
+    import optimistix as optx
+
+    target = 1.0 + 0.1 * np.random.default_rng(0).standard_normal((16, 16))
+    light = jc.DirectionalLight([0.0, 0.0, -1.0])
+    solver = optx.GradientDescent(learning_rate=1e9, rtol=0.0, atol=0.0)
+    with pytest.warns(UserWarning, match="GradientDescent solver diverged at level 0"):
+        result = jc.recover_surface(target, extent=(0, 1, 0, 1), rest_depth=0.5, light=light,
+                                    start="ripple", solver=solver, max_steps=5, throw=False)  # fmt: skip
+    assert result.levels[0].result == optx.RESULTS.nonlinear_divergence
+    # the start's ripple is 0.01 m peak to peak; the runaway's, 2.8e20 m
+    assert np.all(np.isfinite(result.heights)) and np.ptp(result.heights) < 0.02
+    assert np.isfinite(result.image_error)

@@ -106,6 +106,38 @@ def test_the_driver_stops_a_stalled_fixed_point_and_keeps_its_best_iterate():
     assert history == [0.5 * m**2 for m in (0.5, 0.75, 1.125, 1.6875)]
 
 
+def test_the_driver_stops_a_diverging_solver_and_keeps_the_last_finite_iterate():
+    """Gradient descent with a step far too long on ``y^4`` overflows in a few steps: the
+    run ends as diverged with the iterate before the overflow, and no NaN or infinite loss
+    in the history (NaN heights were reported downstream as impossible geometry)."""
+    import jax.numpy as jnp
+
+    def loss(y, args):
+        return jnp.sum(y**4)
+
+    history, seen = [], []
+    run = driver.iterate(
+        loss, optx.GradientDescent(learning_rate=10.0, rtol=0.0, atol=0.0),
+        jnp.ones(2, jnp.float32), None, max_steps=50, history=history,
+        callback=lambda info: seen.append(info["loss"]),
+    )  # fmt: skip
+    assert run.diverged and run.result == optx.RESULTS.nonlinear_divergence
+    assert 1 <= run.steps < 50 and len(history) == run.steps - 1 and seen == history
+    assert np.all(np.isfinite(np.asarray(run.y))) and np.all(np.isfinite(history))
+
+
+def test_a_diverged_design_stage_is_named_as_such_not_as_a_step_limit():
+    import types
+
+    from jaxcaustics.inverse import design
+
+    report = {"stage": "irradiance", "shape": (32, 32), "steps": 7, "loss": 1.0,
+              "result": optx.RESULTS.nonlinear_divergence}  # fmt: skip
+    notes = design._design_warnings(types.SimpleNamespace(warn_error=0.15), [report], 0.1, 0.0)
+    assert len(notes) == 1 and "(32, 32) diverged at step 7" in notes[0], notes
+    assert "`solver`" in notes[0] and design._stopped(report)
+
+
 def test_the_driver_reports_max_steps_when_the_budget_ends_the_run():
     import jax.numpy as jnp
 

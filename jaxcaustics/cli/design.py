@@ -51,6 +51,7 @@ from .flags import (
     number,
     output_folder,
     resume_checkpoint,
+    translate,
     with_flags,
 )
 
@@ -198,7 +199,7 @@ def add_design(subparsers) -> None:
     design.add_argument(
         "--verify", action="store_true", help="render the exported solid with the reference"
     )
-    design.set_defaults(func=with_flags(run_design, _DESIGN_FLAGS))
+    design.set_defaults(func=with_flags(run_design, _DESIGN_FLAGS, _DESIGN_PHRASES))
 
 
 # the library's argument names of `design_lens` and `export_lens` -> the design's flags
@@ -215,7 +216,9 @@ _DESIGN_FLAGS = {
     "max_steps": "--steps",
     "max_relief": "--max-relief",
     "tool_radius_mm": "--tool-radius",
+    "solver": "--solver",
 }
+_DESIGN_PHRASES = {"the target's size": "`--size`"}
 
 
 def _levels(text: str) -> list[int]:
@@ -432,8 +435,8 @@ def run_design(args: argparse.Namespace) -> int:
         f"{design.predicted_error:.3f} (relative L2), {100 * design.dark_flux:.1f}% of the "
         "flux on dark pixels"
     )
-    for note in design.warnings:
-        print(f"warning: {note}")
+    for note in design.warnings:  # again, after the progress bar, in the flags' words
+        print(f"warning: {translate(note, _DESIGN_FLAGS, _DESIGN_PHRASES)}")
     print((out / "lens_report.txt").read_text() if (out / "lens_report.txt").exists() else "")
     print(f"wrote {out}/ (lens.stl, lens.obj, height maps, design.json, predicted.png, loss.png)")
     return 0

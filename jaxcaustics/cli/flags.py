@@ -6,6 +6,7 @@ from __future__ import annotations
 import argparse
 import math
 import re
+import warnings
 from collections.abc import Callable
 from pathlib import Path
 
@@ -109,18 +110,41 @@ def resume_checkpoint(checkpoint: Path, resume: bool) -> None:
         )
 
 
-def with_flags(run: Callable[[argparse.Namespace], int], flags: dict[str, str]):
-    """`run`, its `ValueError`s naming the command's flags instead of the library's
-    arguments (`flags`: argument -> flag), e.g. `levels` -> `--levels`."""
+def translate(text: str, flags: dict[str, str], phrases: dict[str, str] | None = None) -> str:
+    """`text` with the library's argument names (in backticks) replaced by the command's
+    flags (`flags`: argument -> flag) and the plain `phrases` by theirs; a flag named
+    twice in a row (two arguments, one flag) is named once."""
+    for name, flag in flags.items():
+        text = text.replace(f"`{name}`", f"`{flag}`")
+    for phrase, said in (phrases or {}).items():
+        text = text.replace(phrase, said)
+    return re.sub(r"(`[^`]+`)(,| or|, or) \1", r"\1", text)
+
+
+def with_flags(
+    run: Callable[[argparse.Namespace], int],
+    flags: dict[str, str],
+    phrases: dict[str, str] | None = None,
+):
+    """`run`, its errors (`ValueError`, `RuntimeError`) and warnings naming the command's
+    flags instead of the library's arguments (`flags`: argument -> flag, e.g. `levels`
+    -> `--levels`; `phrases`: plain text -> the command's words)."""
 
     def wrapped(args: argparse.Namespace) -> int:
-        try:
-            return run(args)
-        except ValueError as err:
-            text = str(err)
-            for name, flag in flags.items():
-                text = text.replace(f"`{name}`", f"`{flag}`")
-            raise ValueError(text) from err
+        shown = warnings.showwarning
+
+        def show(message, category, filename, lineno, file=None, line=None):
+            text = translate(str(message), flags, phrases)
+            shown(text, category, filename, lineno, file, line)
+
+        with warnings.catch_warnings():
+            warnings.showwarning = show
+            try:
+                return run(args)
+            except ValueError as err:
+                raise ValueError(translate(str(err), flags, phrases)) from err
+            except RuntimeError as err:
+                raise RuntimeError(translate(str(err), flags, phrases)) from err
 
     return wrapped
 

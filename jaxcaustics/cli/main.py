@@ -325,6 +325,13 @@ def _render_water(args: argparse.Namespace) -> int:
             depth=args.depth,
             seed=args.seed,
         )
+        low = float(np.min(heights))
+        if args.depth + low <= 0:  # the scene's own error names `surface` and `rest_depth`
+            raise CLIError(
+                f"`--amplitude` {args.amplitude:g} m: the sea's deepest trough ({low:.3g} m at "
+                f"t = {t:g} s) reaches the ground `--depth` {args.depth:g} m below: lower "
+                "--amplitude or raise --depth"
+            )
         surface = jc.HeightField(heights, extent, boundary="periodic")
         return jc.WaterScene(
             surface, light, receiver, args.depth, ior=args.ior, fresnel=args.fresnel
@@ -477,8 +484,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the ``jaxcaustics`` console script; returns the exit code.
 
     Argument errors exit through argparse (`SystemExit` with code 2 and a usage
-    message); errors the library finds in the values (`ValueError`) and file-system
-    errors are printed as one line and give a non-zero code instead of a traceback.
+    message); errors the library finds in the values (`ValueError`, exit 2), file-system
+    errors and a solver's failures (`OSError`, `RuntimeError`, exit 1) are printed as one
+    line instead of a traceback.
     """
     parser = build_parser()
     args = parser.parse_args(argv)
@@ -497,7 +505,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     except (CLIError, ValueError) as err:
         print(f"{parser.prog}: error: {err}", file=sys.stderr)
         return 2
-    except OSError as err:
+    except (OSError, RuntimeError) as err:  # a file system's, a solver's (with `throw`)
         print(f"{parser.prog}: error: {err}", file=sys.stderr)
         return 1
     except KeyboardInterrupt:

@@ -122,6 +122,7 @@ _RECOVER_FLAGS = {
     "heights_shape": "--heights",
     "coarse_to_fine": "--levels",
     "max_steps": "--steps",
+    "solver": "--solver",
 }
 
 

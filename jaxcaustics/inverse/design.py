@@ -517,23 +517,36 @@ def _finish(setup: Setup, h, history, level_reports, result, t_start: float) -> 
 
 def _stopped(report: dict) -> bool:
     """A stage stopped at its step limit before converging (a step budget is no
-    shortfall)."""
+    shortfall), or diverged."""
+    if _diverged(report):
+        return True
     limit = bool(report["result"] == optx.RESULTS.max_steps_reached)
     return limit and not report.get("budget", False)
+
+
+def _diverged(report: dict) -> bool:
+    return bool(report["result"] == optx.RESULTS.nonlinear_divergence)
 
 
 def _design_warnings(setup: Setup, reports, error: float, dark_flux: float) -> list[str]:
     """What a design missed, with what to change (the design warns each)."""
     notes = []
     for r in reports:
-        if _stopped(r):
+        if _diverged(r):
+            notes.append(
+                f"design: the {r.get('stage', 'solve')} of {r['shape']} diverged at step "
+                f"{r['steps']} (its loss became NaN or infinite); the heights before that "
+                "step are kept: try another `solver` (levenberg_marquardt is the steadiest) "
+                "or fewer `max_steps`"
+            )
+        elif _stopped(r):
             transport = r.get("stage") == "transport"
             what = "transport" if transport else f"level {r['shape']}"
             limit = "transport_iterations" if transport else "max_steps"
-            setting = "iterations" if transport else "max_steps"
             notes.append(
                 f"design: the {what} stopped at {limit}={r['steps']} before converging "
-                f"(loss {r['loss']:.3g}); raise `{limit}` (the start's `{setting}`)"
+                f"(loss {r['loss']:.3g}); raise `{limit}`"
+                + (" (the start's `iterations`)" if transport else "")
             )
     if error > setup.warn_error:
         notes.append(

@@ -41,6 +41,8 @@ class Run:
     - `seconds`: the whole run's wall time.
     - `stalled`: the misfit stopped falling for `patience` steps (fixed point only).
     - `misfit`: the best misfit (fixed point only; NaN otherwise).
+    - `diverged`: a step's loss was NaN or infinite; `y` is the iterate before it and
+      `result` is ``optx.RESULTS.nonlinear_divergence``.
     """
 
     y: Any
@@ -50,6 +52,7 @@ class Run:
     seconds: float
     stalled: bool = False
     misfit: float = float("nan")
+    diverged: bool = False
 
 
 class _CallArgs(eqx.Module):
@@ -141,18 +144,27 @@ def iterate(
 
     With `patience` (fixed-point solvers): the best iterate is kept, and a run whose
     misfit has not fallen by 0.1% for `patience` steps ends as stalled (what is left is
-    what the iterate cannot follow)."""
+    what the iterate cannot follow).
+
+    A step whose loss is NaN or infinite ends the run as diverged (`Run.diverged`): that
+    loss is neither recorded nor passed to `callback`, and the iterate before the step is
+    returned (a fixed point's: the best one before it); the NaN heights of such a run were
+    reported downstream as impossible geometry."""
     info = info or {}
     fixed = _fixed_point(solver)
     t0 = time.perf_counter()
     state = _init(fn, solver, y0, args)
     y, best_y, best, worse = y0, y0, np.inf, 0
     result, compile_s, stalled, steps = optx.RESULTS.successful, None, False, 0
+    diverged = False
     for steps in range(1, max_steps + 1):
         y_new, state, done, result, value = _step(fn, solver, y, state, args)
         value = float(value)
         if compile_s is None:
             compile_s = time.perf_counter() - t0
+        if not np.isfinite(value):
+            diverged, result = True, optx.RESULTS.nonlinear_divergence
+            break
         loss = 0.5 * value**2 if fixed else value
         history.append(loss)
         if callback is not None:
@@ -180,6 +192,7 @@ def iterate(
         seconds=time.perf_counter() - t0,
         stalled=stalled,
         misfit=float(best) if fixed else float("nan"),
+        diverged=diverged,
     )
 
 

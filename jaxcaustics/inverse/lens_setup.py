@@ -131,15 +131,15 @@ def _check_design_memory(shape, oversample: int, extra: int, photons: int = 0) -
     physical = _physical_memory()
     if physical is None or estimate <= 0.5 * physical:
         return
-    knobs = "`levels` (or `heights_shape`" + (", `oversample`" if oversample > 1 else "")
+    knobs = "`levels` or `heights_shape`" + (" or `oversample`" if oversample > 1 else "")
+    knobs += " (the grid follows the target's size by default)"
     if predicted > grid:
-        knobs = "`predict_photons` (by default 4 per pixel side: or the target's size)"
+        knobs = "`predict_photons` (4 per pixel side of the target's size by default)"
     raise ValueError(
         f"the design needs about {estimate / 2**30:.1f} GiB (heights grid {tuple(shape)}: "
         f"{grid / 2**30:.1f} GiB at {_BYTES_PER_SAMPLE} bytes a sample; the predicted "
         f"caustic's {photons}^2 photons: {predicted / 2**30:.1f} GiB), more than half of "
         f"this machine's {physical / 2**30:.1f} GiB: lower {knobs}"
-        + (")" if knobs.startswith("`levels`") else "")
     )
 
 

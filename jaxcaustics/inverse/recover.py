@@ -90,7 +90,7 @@ from .solvers import (
 from .transport import MAX_PIXELS
 from .water_refine import FOLD_BLURS, refine_folds
 from .water_start import flat_shift, transport_start
-from .water_target import check_target_mean, load_target
+from .water_target import check_above_ground, check_target_mean, load_target
 
 SOLVERS = SOLVER_NAMES  # (the names `compare_solvers` runs by default)
 WINDOW_MARGIN = 1  # pixels added on each side of the automatic window
@@ -441,10 +441,12 @@ def recover_surface(
             boundary=boundary,
         )
         found, stages = transport_start(gray, **geometry, initial=warm)
+        check_above_ground(found, depth, target_arr, "found by the transport start")
         misfit = stages[-1]["rms"]
         folds = misfit > START_MISFIT
         if fold_fit or (fold_fit is None and folds and solver is None):
             found, fold_stages = refine_folds(seen, found, **geometry, camera_blur_px=blur)
+            check_above_ground(found, depth, target_arr, "found by the fold fit")
             stages = [*stages, *fold_stages]
         if folds and solver is None:
             done = (
@@ -512,6 +514,7 @@ def recover_surface(
             blur=blur,
         )
         initial_loss = float(_loss(problem, u))
+        run_start = u
         chosen = _make_solver(solver, rtol, atol, cg_steps, learning_rate)
         run = iterate(
             residual_fn(chosen),
@@ -528,6 +531,25 @@ def recover_surface(
             )
         u, steps, result = run.y, run.steps, run.result
         loss = float(_loss(problem, u))
+        if depth + float(jnp.min(u * height_scale)) <= 0:
+            what = f"its heights went through the ground, `rest_depth` {depth:g} m below"
+        elif run.diverged or not loss <= initial_loss:
+            what = f"its loss went from {initial_loss:.3g} to {loss:.3g}"
+            if run.diverged:
+                what += " and then to NaN or infinity"
+        else:
+            what = None
+        if what is not None:
+            # a runaway solver's heights (NaN, or through the ground) were reported as the
+            # scene's "`surface` reaches the ground"; the level's start is kept instead
+            u, loss, result = run_start, initial_loss, optx.RESULTS.nonlinear_divergence
+            warnings.warn(
+                f"recover_surface: the {solver_name(solver)} solver diverged at level "
+                f"{index} ({level_shape[0]} x {level_shape[1]}) in {steps} steps ({what}); "
+                "the level's start is kept: try `solver` levenberg_marquardt (the "
+                "steadiest) or fewer `max_steps`",
+                stacklevel=2,
+            )
         level = RecoveryLevel(
             level=index,
             shape=level_shape,

@@ -61,3 +61,21 @@ def load_target(target, ior) -> np.ndarray:
     if arr.shape[0] * arr.shape[1] > MAX_PIXELS:
         raise ValueError(f"`target` {arr.shape} has over {MAX_PIXELS} pixels (4096^2)")
     return check_irradiance(arr, "there is no caustic to match")
+
+
+def check_above_ground(heights, rest_depth: float, target: np.ndarray, found_by: str) -> None:
+    """A `ValueError` naming `target` and `rest_depth` when the recovered `heights`
+    (metres about the rest level) reach the ground: no water that deep makes the target's
+    caustic (it was reported as the internal "`surface` reaches the ground", after the
+    whole recovery). Slopes focus light in proportion to the depth, so the waves a caustic
+    needs shrink as ``1 / rest_depth^2`` relative to it: deeper water can."""
+    low = float(np.min(heights))
+    if rest_depth + low > 0:
+        return
+    peak = float(np.max(target) / np.mean(target))
+    raise ValueError(
+        f"`target` cannot be made by water `rest_depth` {rest_depth:g} m deep: the waves "
+        f"that focus it (peak {peak:.3g} x the mean) dip {-low:.3g} m below the rest level "
+        f"({found_by}), through the ground. Deeper water makes the same caustic with gentler "
+        "waves: check `rest_depth`, and the target's exposure (a picture's gamma)"
+    )
