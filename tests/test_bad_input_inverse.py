@@ -526,19 +526,43 @@ def test_cli_refuses_in_one_line(out, capsys, monkeypatch, argv, flag):
     assert not _COMPILED, f"compiled before refusing: {_COMPILED}"
 
 
-def test_cli_render_water_names_waves_through_the_ground(capsys, monkeypatch, tmp_path):
-    """Waves deeper than the water were refused naming `surface` and `rest_depth`, which
-    `render water` does not take; now `--amplitude` and `--depth`, before rendering (the
-    sea's heights, which the check needs, are drawn first: they compile)."""
+LATE_CLI_CASES = [
+    # named `surface` and `rest_depth`, which `render water` does not take
+    (["render", "water", "--amplitude", "100"], r"`--amplitude` 100 m.*`--depth` 1 m"),
+    # named `num_waves` and `wavelength_range`
+    (["recover", "--size", "0.001,0.001"], r"`--size` 0.001,0.001 m.*built-in sea"),
+]
+
+
+@pytest.mark.parametrize(("argv", "said"), LATE_CLI_CASES, ids=[a[0] for a, _ in LATE_CLI_CASES])
+def test_cli_names_the_flag_behind_a_check_that_needs_the_sea(
+    capsys, monkeypatch, tmp_path, argv, said
+):
+    """Checks that need the sea's heights (drawn first: they compile) name the flags,
+    before rendering or tracing."""
 
     def started(*args, **kwargs):
-        raise AssertionError("rendered before the waves were checked")
+        raise AssertionError("the work started before the waves were checked")
 
     monkeypatch.setattr(jc, "render", started)
-    code = main(["render", "water", "--amplitude", "100", "--output", str(tmp_path)])
+    monkeypatch.setattr(reference, "trace_water", started)
+    code = main([*argv, "--output", str(tmp_path)])
     err = capsys.readouterr().err
     assert code == 2 and "Traceback" not in err, err
-    assert re.search(r"`--amplitude` 100 m.*`--depth` 1 m", err.strip().splitlines()[-1])
+    assert re.search(said, err.strip().splitlines()[-1]), err
+
+
+def test_cli_render_water_on_a_tiny_floor_keeps_the_window_on_it(capsys, tmp_path):
+    """On a 1 cm floor the automatic window (65 x 64) reached past the 16 x 16 pixels and
+    was refused naming `samples_x`; now it is cut to the receiver and the render runs,
+    its missed light said once, in the flags' words."""
+    argv = ["render", "water", "--extent", "0.01x0.01", "--size", "16x16",
+            "--heightfield-size", "16x16", "--quiet", "--output", str(tmp_path)]  # fmt: skip
+    code = main(argv)
+    err = capsys.readouterr().err
+    assert code == 0, err
+    assert "N = 33, M = 32" in err and "samples_x" not in err, err
+    assert err.count("of the light lands outside") == 1, err
 
 
 def test_cli_names_flags_in_library_errors_and_warnings():
@@ -608,8 +632,10 @@ def test_a_runaway_solver_keeps_the_level_start_and_says_so():
     light = jc.DirectionalLight([0.0, 0.0, -1.0])
     solver = optx.GradientDescent(learning_rate=1e9, rtol=0.0, atol=0.0)
     with pytest.warns(UserWarning, match="GradientDescent solver diverged at level 0"):
-        result = jc.recover_surface(target, extent=(0, 1, 0, 1), rest_depth=0.5, light=light,
-                                    start="ripple", solver=solver, max_steps=5, throw=False)  # fmt: skip
+        result = jc.recover_surface(
+            target, extent=(0, 1, 0, 1), rest_depth=0.5, light=light, start="ripple",
+            solver=solver, max_steps=5, throw=False,
+        )  # fmt: skip
     assert result.levels[0].result == optx.RESULTS.nonlinear_divergence
     # the start's ripple is 0.01 m peak to peak; the runaway's, 2.8e20 m
     assert np.all(np.isfinite(result.heights)) and np.ptp(result.heights) < 0.02

@@ -368,8 +368,10 @@ def _render_water(args: argparse.Namespace) -> int:
         for t in times:
             fn, fm = jc.auto_window(scene_at(t), args.hit_iterations, args.supersample)
             auto_n, auto_m = max(auto_n, fn), max(auto_m, fm)
-        n = auto_n if n == "auto" else n
-        m = auto_m if m == "auto" else m
+        # no wider than the receiver (a window past every pixel was refused naming
+        # `samples_x`, on a tiny --extent)
+        n = min(auto_n, 2 * cols + 1) if n == "auto" else n
+        m = min(auto_m, 2 * rows) if m == "auto" else m
     if n * (m + 1) > 1000:
         print(
             f"note: a large window (N = {n}, M = {m}) takes long to compile; light moves "
@@ -383,15 +385,17 @@ def _render_water(args: argparse.Namespace) -> int:
     )
 
     def render(scene):
-        image, stats = jc.render(
-            scene,
-            "twopass",
-            return_stats=True,
-            samples_x=n,
-            channels_y=m,
-            hit_iterations=args.hit_iterations,
-            supersample=args.supersample,
-        )
+        with warnings.catch_warnings():  # missed light: said below, in the flags' words
+            warnings.filterwarnings("ignore", message="render: method 'twopass' missed")
+            image, stats = jc.render(
+                scene,
+                "twopass",
+                return_stats=True,
+                samples_x=n,
+                channels_y=m,
+                hit_iterations=args.hit_iterations,
+                supersample=args.supersample,
+            )
         image = jax.block_until_ready(image)
         return np.asarray(image), np.asarray(stats["missed_flux_fraction"])
 

@@ -126,22 +126,33 @@ _RECOVER_FLAGS = {
 }
 
 
+_SEA_WAVELENGTHS = (0.3, 1.0)  # the built-in sea's waves, metres
+
+
 def _built_in_sea(args, extent, light) -> tuple[np.ndarray, np.ndarray]:
     """The CLI's demonstration: a 64^2 sea and its caustic traced by the reference."""
 
     n = args.heights or 64
-    truth = np.asarray(
-        wave_heights(
-            (n, n),
-            extent,
-            amplitude=0.003,
-            depth=args.depth,
-            wavelength_range=(0.3, 1.0),
-            num_waves=8,
-            seed=3,
-        ),
-        float,
-    )
+    try:
+        truth = np.asarray(
+            wave_heights(
+                (n, n),
+                extent,
+                amplitude=0.003,
+                depth=args.depth,
+                wavelength_range=_SEA_WAVELENGTHS,
+                num_waves=8,
+                seed=3,
+            ),
+            float,
+        )
+    except ValueError as err:  # it named `num_waves` and `wavelength_range`
+        low, high = _SEA_WAVELENGTHS
+        raise ValueError(
+            f"`--size` {extent[1]:g},{extent[3]:g} m: the built-in sea's waves, {low:g} to "
+            f"{high:g} m long and periodic over the floor, do not fit on it (give a floor of "
+            "a metre or more, or a TARGET)"
+        ) from err
     scene = WaterScene(
         HeightField(truth, extent),
         light,
