@@ -445,6 +445,7 @@ def out(tmp_path):
 
     (tmp_path / "a_file").write_text("")
     jc.write_png(tmp_path / "black.png", np.zeros((8, 8)))
+    jc.write_png(tmp_path / "target.png", np.linspace(0.2, 1.0, 64).reshape(8, 8))
     header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
     with OpenEXR.File(header, {"Y": np.full((8, 8), np.nan, np.float32)}) as f:
         f.write(str(tmp_path / "nan.exr"))  # `write_exr` refuses NaN: another tool's file
@@ -469,6 +470,9 @@ CLI_CASES = [
     (["design", "/etc/hostname"], "TARGET"),  # named `path`
     (["design", "{out}/black.png"], "TARGET"),  # all black: named `target` after a resize
     (["design", "{out}/nan.exr"], "TARGET"),
+    # its target.png would be written over the picture it was made from
+    (["design", "{out}/target.png", "--output", "{out}"], "--output"),
+    (["design", "--outline", "{out}/target.png", "--output", "{out}"], "--output"),
     # recover
     (["recover", "--size", "0,1"], "--size"),  # named `extent`, after tracing the sea
     (["recover", "--size", "nan,1"], "--size"),
@@ -491,6 +495,7 @@ CLI_CASES = [
     (["recover", "/etc/hostname"], "TARGET"),
     (["recover", "{out}/frames"], "TARGET"),  # an empty folder
     (["recover", "{out}/nan.exr"], "TARGET"),
+    (["recover", "{out}/target.png", "--output", "{out}"], "--output"),
     # render water
     (["render", "water", "--size", "5000x5000"], "--size"),
     (["render", "water", "--heightfield-size", "100000x100000"], "--heightfield-size"),  # abort

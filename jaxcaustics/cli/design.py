@@ -16,8 +16,6 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import json
-import os
 import time
 from pathlib import Path
 
@@ -38,6 +36,7 @@ from ..inverse.problem import (
 )
 from ..inverse.solvers import SOLVER_NAMES
 from ..inverse.verify import verify_heights, verify_lens
+from ..io.files import save_figure, write_json
 from ..io.images import READ_EXTENSIONS, check_folder, read_image, write_exr, write_png
 from ..scene.mirror import MirrorScene
 from ..scene.scene import DirectionalLight
@@ -51,6 +50,7 @@ from .flags import (
     number,
     output_folder,
     resume_checkpoint,
+    spare_inputs,
     translate,
     with_flags,
 )
@@ -218,6 +218,13 @@ _DESIGN_FLAGS = {
     "tool_radius_mm": "--tool-radius",
     "solver": "--solver",
 }
+# the files a design writes into `--output` (`export_lens`'s with name "lens")
+_WRITTEN = [
+    *(f"lens{ending}" for ending in (".stl", ".obj", "_height.png", "_height.json",
+                                     "_height.exr", "_report.json", "_report.txt")),
+    "predicted.png", "target.png", "target.exr", "loss.png", "design.json", "summary.json",
+    "design.ckpt", "verification.json",
+]  # fmt: skip
 _DESIGN_PHRASES = {"the target's size": "`--size`"}
 
 
@@ -245,13 +252,6 @@ def _plain(value):
     if isinstance(value, (tuple, list)):
         return [_plain(v) for v in value]
     return repr(value)  # a solver object
-
-
-def _write_json(path: Path, data: dict) -> None:
-    """`data` as JSON at `path`, written to a temporary name and renamed."""
-    tmp = path.with_name(path.name + ".tmp")
-    tmp.write_text(json.dumps(data, indent=2))
-    os.replace(tmp, path)
 
 
 def _on_the_ground(scene) -> bool:
@@ -310,7 +310,7 @@ def describe_folder(out: Path, design, start, finish, *, source: str, max_relief
     verify the part (`jaxcaustics verify`)."""
     target = np.asarray(design.target)
     write_exr(out / "target.exr", target)
-    _write_json(
+    write_json(
         out / "design.json",
         {
             "problem": problem_to_dict(design.problem),
@@ -359,6 +359,8 @@ def run_design(args: argparse.Namespace) -> int:
         _screen(args, problem.screen),
         problem.light,
     )
+    inputs = [Path(p) for p in (args.target, args.outline) if p and Path(p).is_file()]
+    spare_inputs(args.output, _WRITTEN, inputs)
     out = output_folder(args.output)
     checkpoint = out / "design.ckpt"
     resume_checkpoint(checkpoint, args.resume)
@@ -429,7 +431,7 @@ def run_design(args: argparse.Namespace) -> int:
             "screen_far": report.screen_far,
             "sun": report.sun,
         }
-    _write_json(out / "summary.json", summary)
+    write_json(out / "summary.json", summary)
     print(
         f"designed in {seconds:.1f} s; relief {1000 * design.relief:.2f} mm; predicted error "
         f"{design.predicted_error:.3f} (relative L2), {100 * design.dark_flux:.1f}% of the "
@@ -455,5 +457,5 @@ def _loss_plot(losses: list[float], path: Path) -> None:
     ax.set_ylabel("loss per residual")
     ax.set_title("lens design")
     fig.tight_layout()
-    fig.savefig(path, dpi=80)
+    save_figure(fig, path, dpi=80)
     plt.close(fig)

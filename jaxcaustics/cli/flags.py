@@ -101,6 +101,20 @@ def output_folder(path: Path) -> Path:
     return path
 
 
+def spare_inputs(folder: Path, written: list[str], inputs: list) -> None:
+    """A `ValueError` naming `--output` when the command would write one of the files
+    `written` (names in `folder`) over one of its `inputs` (a picture named
+    ``target.png`` in the output folder was read, then overwritten)."""
+    for name in written:
+        path = folder / name
+        for source in inputs:
+            if path.is_file() and Path(source).is_file() and path.samefile(source):
+                raise ValueError(
+                    f"`--output` {str(folder)!r}: the command writes its {name} there, over "
+                    f"the input {str(source)!r}: choose another folder, or move the input"
+                )
+
+
 def resume_checkpoint(checkpoint: Path, resume: bool) -> None:
     """`--resume` needs the checkpoint that an earlier run left in `--output`."""
     if resume and not checkpoint.is_file():

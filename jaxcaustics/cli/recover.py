@@ -4,7 +4,6 @@ video of a pool floor."""
 from __future__ import annotations
 
 import argparse
-import json
 import math
 import time
 from pathlib import Path
@@ -14,6 +13,7 @@ import numpy as np
 from .. import reference
 from ..inverse.sequence import frame_paths, load_frames, recover_sequence
 from ..inverse.solvers import SOLVER_NAMES
+from ..io.files import save_figure, write_json
 from ..io.images import write_exr, write_png
 from ..scene.scene import DirectionalLight, HeightField, PlaneReceiver, WaterScene
 from ..scene.waves import wave_heights
@@ -25,6 +25,7 @@ from .flags import (
     number,
     output_folder,
     resume_checkpoint,
+    spare_inputs,
     with_flags,
     zenith,
 )
@@ -176,8 +177,15 @@ def _write_residual(path: Path, residual: np.ndarray) -> None:
     fig.colorbar(shown, ax=ax, label="recovered - target")
     ax.set_title("where the recovery does not fit")
     fig.tight_layout()
-    fig.savefig(path, dpi=80)
+    save_figure(fig, path, dpi=80)
     plt.close(fig)
+
+
+def _written(count: int) -> list[str]:
+    """The files a recovery of `count` frames writes into `--output`."""
+    tags = [""] if count == 1 else [f"_{k:04d}" for k in range(count)]
+    names = ("heights{}.exr", "recovered_caustic{}.png", "target{}.png", "residual{}.png")
+    return [n.format(t) for t in tags for n in names] + ["summary.json", "recover.ckpt"]
 
 
 def run_recover(args: argparse.Namespace) -> int:
@@ -198,6 +206,12 @@ def run_recover(args: argparse.Namespace) -> int:
             raise ValueError("`TARGET` is empty (an unset shell variable?): give a file or folder")
         if not Path(name).exists():
             raise ValueError(f"`TARGET` {name!r}: no such file or folder")
+    frames: list = []
+    if len(args.target) == 1 and Path(args.target[0]).is_dir():
+        frames = frame_paths(args.target[0])
+    elif args.target:
+        frames = [Path(t) for t in args.target]
+    spare_inputs(args.output, _written(max(len(frames), 1)), frames)
     out = output_folder(args.output)
     checkpoint = out / "recover.ckpt"
     resume_checkpoint(checkpoint, args.resume)
@@ -206,11 +220,7 @@ def run_recover(args: argparse.Namespace) -> int:
     truth = None
     if not args.target:
         truth, built_in = _built_in_sea(args, extent, light)
-        frames: list = [built_in]
-    elif len(args.target) == 1 and Path(args.target[0]).is_dir():
-        frames = frame_paths(args.target[0])
-    else:
-        frames = [Path(t) for t in args.target]
+        frames = [built_in]
     targets = load_frames(frames, args.ior)  # read and checked once, scaled to unit mean
     if args.gamma != 1 and args.target:
         targets = [t**args.gamma / np.mean(t**args.gamma) for t in targets]
@@ -237,7 +247,7 @@ def run_recover(args: argparse.Namespace) -> int:
         return 130
     single = len(frames) == 1
     for k in range(len(frames)):
-        tag = "" if single else f"_{k:04d}"
+        tag = "" if single else f"_{k:04d}"  # as `_written` says
         write_exr(out / f"heights{tag}.exr", result.heights[k])
         write_png(out / f"recovered_caustic{tag}.png", result.images[k])
         write_png(out / f"target{tag}.png", targets[k])
@@ -254,7 +264,7 @@ def run_recover(args: argparse.Namespace) -> int:
     if truth is not None:
         t = truth - truth.mean()
         summary["height_error"] = float(np.linalg.norm(result.heights[0] - t) / np.linalg.norm(t))
-    (out / "summary.json").write_text(json.dumps(summary, indent=2))
+    write_json(out / "summary.json", summary)
     for key, value in summary.items():
         print(f"{key}: {value}")
     names = "heights, recovered_caustic, target, residual" + ("" if single else " per frame")

@@ -12,7 +12,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
 from pathlib import Path
 
 import numpy as np
@@ -20,6 +19,7 @@ import numpy as np
 from ..inverse.problem import Mirror, problem_from_dict
 from ..inverse.screen_geometry import screen_pose
 from ..inverse.verify import MAX_PHOTONS_PER_AXIS, verify_heights, verify_lens
+from ..io.files import write_json
 from ..io.images import read_exr
 from ..scene.mirror import MirrorScene
 from ..scene.scene import HeightField, LensScene, PlaneReceiver
@@ -118,8 +118,6 @@ def run_verify(args: argparse.Namespace) -> int:
             "screen_shift": report.screen_shift,
         }
     path = Path(args.folder) / "verification.json"
-    tmp = path.with_name(path.name + ".tmp")
-    tmp.write_text(json.dumps(figures, indent=2))
-    os.replace(tmp, path)
+    write_json(path, figures)
     print(f"wrote {path}")
     return 0

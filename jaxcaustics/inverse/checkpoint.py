@@ -31,6 +31,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from .._warnings import warn_user
+from ..io.files import written_whole
 from ..io.images import check_folder
 
 FORMAT = "jaxcaustics-checkpoint-2"
@@ -109,12 +110,10 @@ def refuse_another_run(checkpoint, resume: bool, state: Any, names: Sequence[str
 def save_checkpoint(path: str | os.PathLike, state: Any, round_index: int) -> Path:
     """Write `state` (after `round_index` rounds) to `path` atomically; returns the path."""
     path = Path(path)
-    tmp = path.with_name(path.name + ".tmp")
-    with open(tmp, "wb") as f:
+    with written_whole(path) as tmp, open(tmp, "wb") as f:
         for header in (FORMAT, str(jax.tree_util.tree_structure(state)), round_index):
             np.save(f, np.array(header), allow_pickle=False)
         eqx.tree_serialise_leaves(f, state)
-    os.replace(tmp, path)
     return path
 
 

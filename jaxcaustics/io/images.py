@@ -33,6 +33,7 @@ import imagecodecs
 import numpy as np
 
 from .._checks import check_bool
+from .files import written_whole
 from .probe import check_picture, read_tiff_page
 
 __all__ = ["read_exr", "read_image", "write_exr", "write_png", "write_png_linear16"]
@@ -204,8 +205,8 @@ def write_exr(path, image, *, channel_names: Sequence[str] | None = None) -> Non
         _EXR_LAYOUT_KEY: json.dumps({"channels": names, "ndim": arr.ndim}),
     }
     _prepare_output(p)
-    with OpenEXR.File(header, channels) as f:
-        f.write(str(p))
+    with written_whole(p) as tmp, OpenEXR.File(header, channels) as f:
+        f.write(str(tmp))
 
 
 def _exr_channel_order(names: list[str], header: dict) -> tuple[list[str], int]:
@@ -290,12 +291,13 @@ def _write_png_uint16_rgb(p: Path, q: np.ndarray) -> None:
 def _save_png(p: Path, q: np.ndarray) -> None:
     """Saves a uint8 / uint16 array of shape (rows, cols) or (rows, cols, 3)."""
     _prepare_output(p)
-    if q.dtype == np.uint16 and q.ndim == 3:
-        _write_png_uint16_rgb(p, q)
-        return
-    import skimage.io
+    with written_whole(p) as tmp:
+        if q.dtype == np.uint16 and q.ndim == 3:
+            _write_png_uint16_rgb(tmp, q)
+        else:
+            import skimage.io
 
-    skimage.io.imsave(str(p), q, check_contrast=False)
+            skimage.io.imsave(str(tmp), q, check_contrast=False)
 
 
 def _read_png_16bit(p: Path) -> np.ndarray | None:

@@ -60,6 +60,7 @@ from __future__ import annotations
 import dataclasses
 import os
 from collections.abc import Sequence
+from pathlib import Path
 
 import equinox as eqx
 import jax
@@ -76,6 +77,7 @@ from ..._checks import (
     check_number,
 )
 from ...devices import check_per_device, map_sharded, resolve_devices
+from ...io.files import written_whole
 from ...trace.optics import orthonormal_basis
 from .exit_rays import EXIT_RAY_FLOATS, trace_exit_rays
 from .fit import (
@@ -251,8 +253,11 @@ class SpotLightTable(eqx.Module):
                     arrays[f"lights.{name}"] = np.asarray(getattr(value, name))
             else:
                 arrays[field.name] = np.asarray(value)
+        if Path(path).suffix != ".npz":  # numpy would add it
+            path = Path(path).with_name(Path(path).name + ".npz")
         try:
-            np.savez_compressed(path, **arrays)
+            with written_whole(path) as tmp:
+                np.savez_compressed(tmp, **arrays)
         except OSError as err:
             raise ValueError(f"`path` cannot be written: {err}") from err
 

@@ -1,0 +1,57 @@
+"""Files written whole or not at all: every writer in the package writes to a temporary
+name beside its file and renames it into place (`os.replace`, atomic within a folder),
+so a failure (a full disk, an interrupt, a bad array) leaves the earlier file, or none,
+never half of one. The standard library has the pieces (`tempfile`, `os.replace`) but
+not the pattern; the maintained packages that wrap it (``atomicwrites``, archived in
+2022; ``safer``) would add a dependency for ten lines."""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import os
+import tempfile
+from collections.abc import Iterator
+from pathlib import Path
+
+
+@contextlib.contextmanager
+def written_whole(path: str | os.PathLike) -> Iterator[Path]:
+    """Yield a temporary path beside `path`, with its suffix (writers that choose a
+    format by the suffix still do); when the block ends without an error, rename it onto
+    `path`, else remove it.
+
+    **Arguments:**
+
+    - `path`: the file to write; its folder must exist.
+
+    **Returns:** (yields) the temporary `Path` to write to.
+    """
+    path = Path(path)
+    handle, name = tempfile.mkstemp(prefix=f".{path.stem}.partial-", suffix=path.suffix,
+                                    dir=path.parent)  # fmt: skip
+    os.close(handle)
+    tmp = Path(name)
+    try:
+        yield tmp
+        os.replace(tmp, path)
+    finally:
+        tmp.unlink(missing_ok=True)
+
+
+def write_text(path: str | os.PathLike, text: str) -> None:
+    """`text` written whole to `path` (UTF-8)."""
+    with written_whole(path) as tmp:
+        tmp.write_text(text, encoding="utf-8")
+
+
+def write_json(path: str | os.PathLike, data) -> None:
+    """`data` as indented JSON, written whole to `path`."""
+    write_text(path, json.dumps(data, indent=2) + "\n")
+
+
+def save_figure(figure, path: str | os.PathLike, **kwargs) -> None:
+    """A matplotlib `figure` saved whole to `path` (`kwargs` to `savefig`; the format
+    from the suffix)."""
+    with written_whole(path) as tmp:
+        figure.savefig(tmp, **kwargs)
