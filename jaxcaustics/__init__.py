@@ -126,6 +126,7 @@ from .scene.scene import (
     WaterScene,
 )
 from .scene.screen_pose import ScreenPose
+from .scene.sources import SunLight
 from .scene.surface import height_and_gradient
 from .scene.waves import gaussian_bump, sine_sum, wave_heights
 from .trace.optics import fresnel_transmittance, reflect, refract
@@ -201,6 +202,7 @@ __all__ = [
     "PinholeCamera",
     "PlaneReceiver",
     "PointLight",
+    "SunLight",
     "PoissonLevels",
     "Polygon",
     "precompute_spot_lights",

@@ -44,6 +44,7 @@ from .poisson_levels import PoissonLevels, check_levels
 from .prediction import predict_caustic, relative_l2
 from .problem import DesignProblem, Lens, Rectangle, Screen, _length
 from .solvers import SolverLike
+from .source_blur import blur, source_limit
 from .transport_start import TransportStart
 
 
@@ -73,6 +74,10 @@ class LensDesign:
     - `timings`: ``{"total": s, "initial_guess": s, "predict": s}``.
     - `warnings`: what the design warned about (also raised with `warnings.warn`).
     - `problem`: the `DesignProblem` designed for.
+    - `source_blur_px`: an extended source's blur on the screen, pixels (the radius of
+      its image: `source_blur.blur_radius`); None under a point or collimated light.
+      `predicted` is then the caustic as seen under the source, and `target` the target
+      as given (the transport aimed at it deconvolved).
     """
 
     heights: np.ndarray
@@ -88,6 +93,7 @@ class LensDesign:
     converged: bool = True
     warnings: list[str] = dataclasses.field(default_factory=list)
     problem: DesignProblem | None = None
+    source_blur_px: float | None = None
 
     @property
     def relief(self) -> float:
@@ -478,13 +484,20 @@ def _finish(setup: Setup, h, history, level_reports, result, t_start: float) -> 
         raise ValueError(msg)
     t0 = time.perf_counter()
     predicted, missed, window, final = predict_caustic(setup, h)
+    if setup.kernel is not None:  # as seen under the extended source
+        predicted = blur(predicted, setup.kernel)
     timings["predict"] = time.perf_counter() - t0
     timings["total"] = time.perf_counter() - t_start
-    target = setup.goal * setup.flux_scale
+    target = setup.seen_goal * setup.flux_scale
     error = relative_l2(predicted, target)
     dark = target < 0.05 * target.mean()
     dark_flux = float(predicted[dark].sum() / max(predicted.sum(), 1e-300))
     notes = _design_warnings(setup, level_reports, error, dark_flux)
+    radius = None
+    if setup.kernel is not None:
+        radius, note = source_limit(setup)
+        if note:
+            notes.append(note)
     # measured: 0.1% on the dots' design (the 16-pixel window); 11.5% on a 32^2
     # silhouette under a point light, nearly all off the screen (11.5% at a 64-pixel
     # window): the light its bevel throws away
@@ -512,6 +525,7 @@ def _finish(setup: Setup, h, history, level_reports, result, t_start: float) -> 
         converged=converged,
         warnings=notes,
         problem=setup.problem,
+        source_blur_px=radius,
     )
 
 

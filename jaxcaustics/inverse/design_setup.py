@@ -41,6 +41,10 @@ class Setup:
     # whether the screen's s and t axes run against the blank's x and y (a mirror's do;
     # for the report: the transport on the screen needs no reversal)
     flips: tuple[bool, bool] = (False, False)
+    # an extended source's image on the screen (`source_blur.source_kernel`); with one,
+    # `goal` is the target deconvolved by it and `seen` the target itself
+    kernel: Any = None
+    seen: Any = None
 
     width = property(lambda self: self.problem.outline.width)
     height = property(lambda self: self.problem.outline.height)
@@ -49,6 +53,8 @@ class Setup:
     light = property(lambda self: self.problem.light)
     top = property(lambda self: self.problem.top)
     is_mirror = property(lambda self: isinstance(self.problem.element, Mirror))
+    # the target as it should be seen (under the source): `goal` but for a source's blur
+    seen_goal = property(lambda self: self.goal if self.seen is None else self.seen)
 
     @property
     def boundary(self) -> str:

@@ -41,13 +41,14 @@ class _ImageRefine(eqx.Module):
     pixels of displacement, so that L-BFGS sees a well-scaled problem)."""
 
     scene: LensScene
-    goal: jax.Array  # (rows, cols) target at unit mean
+    goal: jax.Array  # (rows, cols) target at unit mean (as seen under the source)
     dark: jax.Array  # (rows, cols) bool: the target below 5% of its mean
     root_symbol: jax.Array  # (hrows, hcols)
     resolved: jax.Array  # (hrows, hcols) bool: the DCT modes the refinement moves
     photons: int = eqx.field(static=True)
     window: int = eqx.field(static=True)
     dark_weight: float = eqx.field(static=True)
+    kernel: jax.Array | None = None  # an extended source's image on the screen
 
     def heights(self, u):
         coef = jax.scipy.fft.dctn(u, type=2, norm="ortho") / self.root_symbol
@@ -66,6 +67,8 @@ class _ImageRefine(eqx.Module):
         e = caustic_triangles.unchecked(
             scene, photons=self.photons, window=self.window, memory_limit=_REFINE_MEMORY
         ).image
+        if self.kernel is not None:  # as seen under the source
+            e = jax.scipy.signal.convolve2d(e, self.kernel, mode="same")
         return e / jnp.mean(e)
 
     def loss(self, u):
@@ -131,9 +134,9 @@ LEANING_STEPS = 24  # anywhere else (measured: see `ImageRefinement`)
 
 
 def _straight(setup: Setup) -> bool:
-    """Vertical light onto a lens over the ground: the map the transport finds is one
-    the lens can make."""
-    return setup.vertical and not setup.is_mirror and setup.pose is None
+    """Vertical light from a point at infinity onto a lens over the ground: the map the
+    transport finds is one the lens can make (an extended source's blur is not in it)."""
+    return setup.vertical and not setup.is_mirror and setup.pose is None and setup.kernel is None
 
 
 class ImageRefinement(eqx.Module):
@@ -184,7 +187,7 @@ class ImageRefinement(eqx.Module):
         """Refine heights `h` ``(rows, cols)`` (metres) of `setup`'s lens. Returns
         ``(heights, report or None)``: None when there was nothing to refine."""
         dtype = jnp.result_type(float)
-        goal = setup.goal / setup.goal.mean()
+        goal = setup.seen_goal / setup.seen_goal.mean()
         dark_pixels = float(np.mean(goal < 0.05))
         steps = self.budget(setup)
         # straight light with no large dark regions: few jumps of the map to clean up
@@ -210,6 +213,7 @@ class ImageRefinement(eqx.Module):
             n,
             4,
             0.3,
+            None if setup.kernel is None else jnp.asarray(setup.kernel, dtype),
         )
         u0 = _refine_variable(refine, jnp.asarray(h, dtype))
         t0 = time.perf_counter()

@@ -28,6 +28,7 @@ from .numerics import area_average, check_irradiance, neumann_poisson
 from .poisson_levels import PoissonLevels
 from .problem import DesignProblem, Lens, _length
 from .screen_geometry import check_beam_clear, flat_footprint, screen_pose
+from .source_blur import deconvolve, source_kernel
 from .transport import MAX_PIXELS
 from .transport_start import TransportStart
 
@@ -280,6 +281,11 @@ def prepare(
     goal = (tm + floor) / (1.0 + floor)
     pixel_area = (screen[1] - screen[0]) * (screen[3] - screen[2]) / t.size
     flux_scale = flat_flux / (goal.sum() * pixel_area)
+    # an extended source blurs the caustic: the transport aims at the target deconvolved
+    kernel, seen = source_kernel(problem, pose, screen, t.shape), None
+    if kernel is not None:
+        sharp = np.maximum(deconvolve(goal, kernel), floor / (1.0 + floor))  # the floor kept
+        seen, goal = goal, sharp * (goal.mean() / sharp.mean())
 
     vertical = isinstance(light, DirectionalLight) and _vertical(light)
     if isinstance(problem.element, Lens):
@@ -327,4 +333,6 @@ def prepare(
         warn_error=float(warn_error),
         pose=pose,
         flips=flips,
+        kernel=kernel,
+        seen=seen,
     )

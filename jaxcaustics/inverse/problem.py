@@ -23,6 +23,7 @@ import numpy as np
 from .._checks import check_real_array
 from ..scene.outline import check_outline, mask_vertices
 from ..scene.scene import DirectionalLight, PointLight
+from ..scene.sources import SunLight
 
 
 def _length(value, name: str) -> float:
@@ -307,7 +308,14 @@ def _outline_to_dict(outline) -> dict:
 def problem_to_dict(problem: DesignProblem) -> dict:
     """`problem` as plain JSON-ready data (metres), read back by `problem_from_dict`."""
     light = problem.light
-    if isinstance(light, DirectionalLight):
+    if isinstance(light, SunLight):
+        light_data = {
+            "kind": "sun",
+            "direction": np.asarray(light.direction).tolist(),
+            "angular_radius_deg": light.angular_radius_deg,
+            "limb_darkening": light.limb_darkening,
+        }
+    elif isinstance(light, DirectionalLight):
         light_data = {"kind": "directional", "direction": np.asarray(light.direction).tolist()}
     else:
         light_data = {
@@ -354,11 +362,17 @@ def problem_from_dict(data) -> DesignProblem:
             built_outline = shapes[outline["kind"]](outline["width"], outline["height"])
         if light.get("kind") == "directional":
             built_light = DirectionalLight(np.asarray(light["direction"], float))
+        elif light.get("kind") == "sun":
+            built_light = SunLight(
+                np.asarray(light["direction"], float),
+                light["angular_radius_deg"],
+                light.get("limb_darkening", 0.0),
+            )
         elif light.get("kind") == "point":
             position = np.asarray(light["position"], float)
             built_light = PointLight(position, light.get("intensity", 1.0))
         else:
-            raise ValueError(f"`light` kind {light.get('kind')!r} is not directional or point")
+            raise ValueError(f"`light` kind {light.get('kind')!r} is not directional, sun or point")
         built_element = (
             Lens(element["thickness"], element["ior"])
             if element["kind"] == "lens"

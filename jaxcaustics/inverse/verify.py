@@ -20,6 +20,7 @@ from .._checks import check_int, check_real_array
 from ..scene.mesh import Mesh, MeshScene
 from ..scene.mirror import MirrorScene
 from ..scene.scene import DirectionalLight, LensScene, PlaneReceiver
+from ..scene.sources import SunLight
 from .export import lens_solid
 from .lens_setup import check_mask
 
@@ -107,11 +108,13 @@ def _sun_directions(light: DirectionalLight, samples: int) -> list[np.ndarray]:
 class Verification:
     """Relative L2 errors (unit-mean images) of a design rendered by the reference.
 
-    - `nominal`: the exported solid, as specified.
+    - `nominal`: the exported solid, as specified, under the design's light (a
+      `SunLight`'s disc sampled: `jaxcaustics.reference.trace_mesh`).
     - `screen_near`, `screen_far`: the screen moved towards / away from the lens by
       `screen_shift` of the screen distance.
     - `sun`: lit by a disc of the Sun's angular size (0.53 degrees) instead of a point;
-      None for a design under a point light (the Sun is not its light).
+      None for a design under a point light (the Sun is not its light); `nominal` for a
+      design under a `SunLight`.
     - `image`: the nominal reference image.
     """
 
@@ -222,7 +225,9 @@ def verify_lens(
         )
 
     sun_error = None  # a point light's design: no figure (it was NaN)
-    if isinstance(scene.light, DirectionalLight):
+    if isinstance(scene.light, SunLight):  # the nominal trace was under the Sun
+        sun_error = relative_l2(nominal, target, mask)
+    elif isinstance(scene.light, DirectionalLight):
         per_axis = max(16, int(photons_per_axis / math.sqrt(sun_samples)))
         images = []
         for direction in _sun_directions(scene.light, sun_samples):

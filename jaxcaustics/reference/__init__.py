@@ -161,6 +161,14 @@ orthonormal ``rotation`` whose columns are its axes) of index ``n`` (each of
   through its centre perpendicular to the light (from support functions), cut into a
   grid of equal cells; photons start before every ellipsoid and carry
   ``A_perp / |d_z|``, as for meshes.
+
+Extended sources
+----------------
+A directional light with an ``angular_radius`` (radians: `jaxcaustics.SunLight`) is a
+disc of directions: `trace_lens`, `trace_mesh` and `trace_mirror` trace
+``source_samples`` of them (default `SOURCE_SAMPLES`, spread by `disc_directions`),
+each with ``photons_per_axis / sqrt(source_samples)`` photons per axis, and average the
+images with the disc's weights (`_sources.py`).
 """
 
 from ._ellipsoid import trace_ellipsoid, trace_ellipsoid_rays
@@ -168,11 +176,19 @@ from ._lens import emit_lens_photons, trace_lens, trace_lens_photons
 from ._mesh import emit_mesh_photons, intersect_mesh, trace_mesh, trace_mesh_photons
 from ._mirror import trace_mirror, trace_mirror_photons
 from ._optics import PHOTON_BYTES, chunk_photons
+from ._sources import SOURCE_SAMPLES, disc_directions, over_source
 from ._surface import surface_height
 from ._water import area_ratio_water, trace_photons, trace_water
 
+# under a disc source (the Sun) these integrate over it
+trace_lens = over_source(trace_lens)
+trace_mesh = over_source(trace_mesh)
+trace_mirror = over_source(trace_mirror)
+
 __all__ = [
     "PHOTON_BYTES",
+    "SOURCE_SAMPLES",
+    "disc_directions",
     "area_ratio_water",
     "chunk_photons",
     "emit_lens_photons",

@@ -2,10 +2,12 @@
 
 - `scene.py`: `HeightField`, `DirectionalLight`, `PointLight`, `PlaneReceiver`, `Effects`,
   `WaterScene` and `LensScene` (plain data: Equinox modules).
+- `sources.py`: `SunLight`, a `DirectionalLight` with the Sun's disc.
 - `mesh.py`: `Mesh` and `MeshScene`; `ellipsoid.py`: `Ellipsoid` and `EllipsoidScene`.
 - `surface.py`: the height field between its samples (Catmull-Rom bicubic) and rays
   meeting it; `waves.py`: procedural water surfaces.
 - `checks.py`: a scene's values checked where a method starts rendering (under `jit`).
 
-Imports only `jaxcaustics._checks`: every later stage reads the scene, none is read here.
+Imports only `jaxcaustics._checks` (and the reference's NumPy disc sampling): every later
+stage reads the scene, none is read here.
 """
