@@ -126,7 +126,7 @@ from .scene.scene import (
     WaterScene,
 )
 from .scene.screen_pose import ScreenPose
-from .scene.sources import SunLight
+from .scene.sources import AreaLight, SunLight
 from .scene.surface import height_and_gradient
 from .scene.waves import gaussian_bump, sine_sum, wave_heights
 from .trace.optics import fresnel_transmittance, reflect, refract
@@ -137,6 +137,7 @@ __version__ = importlib.metadata.version("jaxcaustics")
 # the public surface: everything above (`from jaxcaustics import *` takes these)
 __all__ = [
     "accuracy_table",
+    "AreaLight",
     "adaptive_caustic_map",
     "AdaptiveCausticMap",
     "auto_window",

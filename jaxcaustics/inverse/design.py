@@ -473,15 +473,10 @@ def lens_problem(
 
 def _finish(setup: Setup, h, history, level_reports, result, t_start: float) -> LensDesign:
     """Fold the relief if asked, check the blank, predict the caustic: the `LensDesign`."""
-    thickness, timings = setup.thickness, dict(setup.timings)
+    timings = dict(setup.timings)
     if setup.max_relief is not None and h.max() - h.min() > setup.max_relief:
         h = fresnel_zones(h, setup.max_relief)
-    if thickness + h.min() <= 0.0:
-        msg = (
-            f"`thickness` {thickness} m is too thin for the design: its relief is "
-            f"{h.max() - h.min():.4g} m, so the surface dips through the bottom face"
-        )
-        raise ValueError(msg)
+    setup.check_thickness(h)
     t0 = time.perf_counter()
     predicted, missed, window, final = predict_caustic(setup, h)
     if setup.kernel is not None:  # as seen under the extended source

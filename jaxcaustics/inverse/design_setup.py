@@ -61,6 +61,17 @@ class Setup:
         """The designed surface's `HeightField` boundary (the start's)."""
         return self.start.boundary
 
+    def check_thickness(self, heights) -> None:
+        """A `ValueError` naming `thickness` when `heights` (``max = 0``) dip through
+        the blank's bottom face (raised in the scene, it named the internal `surface`,
+        after the start, before the refinement)."""
+        relief = float(np.max(heights) - np.min(heights))
+        if self.thickness + float(np.min(heights)) <= 0.0:
+            raise ValueError(
+                f"`thickness` {self.thickness} m is too thin for the design: its relief is "
+                f"{relief:.4g} m, so the surface dips through the bottom face"
+            )
+
     def element_scene(self, heights) -> LensScene | MirrorScene:
         """The design's element with `heights` (bicubic over the aperture, `boundary`):
         a `LensScene` or a `MirrorScene`."""

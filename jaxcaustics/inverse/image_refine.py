@@ -193,6 +193,7 @@ class ImageRefinement(eqx.Module):
         # straight light with no large dark regions: few jumps of the map to clean up
         if steps == 0 or (_straight(setup) and dark_pixels <= 0.1):
             return h, None
+        setup.check_thickness(h)  # before its scene is built
         n = self.photons or 4 * max(setup.target_shape) + 1
         # modes the photon grid resolves (finer ones it sees aliased, as coarser ones,
         # and grows into a texture), and at most two per target pixel (finer ones the

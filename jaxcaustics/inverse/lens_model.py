@@ -25,7 +25,7 @@ import numpy as np
 
 from ..scene.mirror import MirrorScene
 from ..scene.outline import inside_outline
-from ..scene.scene import DirectionalLight, LensScene
+from ..scene.scene import DirectionalLight, LensScene, emission
 from ..scene.surface import PAD_LOW, catmull_rom, pad_heights, ray_surface_hit
 from ..scene.surface import bilinear as _bilinear
 from ..trace.optics import refract_components
@@ -82,6 +82,7 @@ class LensModel(eqx.Module):
             inv = jax.lax.rsqrt(sum(c * c for c in offset))
             d = tuple(c * inv for c in offset)
             density = scene.light.intensity * jnp.abs(d[2]) * inv * inv
+            density = density * emission(scene.light, d[2])
         if self.sampling is not None:  # vertical light: the hits are the grid points
             wy, dwy, wx, dwx = self.sampling
             hit_x, hit_y = px, py

@@ -20,7 +20,14 @@ from .._checks import (
     check_shape,
 )
 from ..methods.triangles.method import band_bytes
-from ..scene.scene import DirectionalLight, HeightField, LensScene, PlaneReceiver, PointLight
+from ..scene.scene import (
+    DirectionalLight,
+    HeightField,
+    LensScene,
+    PlaneReceiver,
+    PointLight,
+    emission,
+)
 from .design_setup import Setup
 from .image_refine import _REFINE_MEMORY, ImageRefinement
 from .lens_model import aperture_coverage
@@ -90,7 +97,7 @@ def _flat_lens(light, aperture, thickness: float, screen_distance: float, ior: f
         )
         r2 = np.sum(offset**2, axis=-1)
         d = offset / np.sqrt(r2)[..., None]
-        density = float(light.intensity) * np.abs(d[..., 2]) / r2
+        density = float(light.intensity) * np.abs(d[..., 2]) / r2 * emission(light, d[..., 2])
     cos_in = -d[..., 2]
     if np.any(cos_in <= 0):
         raise ValueError("`light` does not reach the screen through the flat lens")

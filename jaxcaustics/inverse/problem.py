@@ -23,7 +23,7 @@ import numpy as np
 from .._checks import check_real_array
 from ..scene.outline import check_outline, mask_vertices
 from ..scene.scene import DirectionalLight, PointLight
-from ..scene.sources import SunLight
+from ..scene.sources import AreaLight, SunLight
 
 
 def _length(value, name: str) -> float:
@@ -317,6 +317,15 @@ def problem_to_dict(problem: DesignProblem) -> dict:
         }
     elif isinstance(light, DirectionalLight):
         light_data = {"kind": "directional", "direction": np.asarray(light.direction).tolist()}
+    elif isinstance(light, AreaLight):
+        light_data = {
+            "kind": "area",
+            "position": np.asarray(light.position).tolist(),
+            "size": list(light.size),
+            "shape": light.shape,
+            "intensity": float(np.asarray(light.intensity)),
+            "lambertian": light.lambertian,
+        }
     else:
         light_data = {
             "kind": "point",
@@ -368,11 +377,21 @@ def problem_from_dict(data) -> DesignProblem:
                 light["angular_radius_deg"],
                 light.get("limb_darkening", 0.0),
             )
+        elif light.get("kind") == "area":
+            built_light = AreaLight(
+                np.asarray(light["position"], float),
+                light["size"] if light.get("shape") != "disc" else light["size"][0],
+                light.get("shape"),
+                light.get("intensity", 1.0),
+                light.get("lambertian", True),
+            )
         elif light.get("kind") == "point":
             position = np.asarray(light["position"], float)
             built_light = PointLight(position, light.get("intensity", 1.0))
         else:
-            raise ValueError(f"`light` kind {light.get('kind')!r} is not directional, sun or point")
+            raise ValueError(
+                f"`light` kind {light.get('kind')!r} is not directional, sun, point or area"
+            )
         built_element = (
             Lens(element["thickness"], element["ior"])
             if element["kind"] == "lens"

@@ -15,7 +15,7 @@ import math
 
 import numpy as np
 
-from ..scene.scene import DirectionalLight
+from ..scene.scene import DirectionalLight, emission
 from ..scene.screen_pose import ScreenPose
 from .problem import DesignProblem, Lens
 
@@ -35,7 +35,8 @@ def _rays_in(problem: DesignProblem, px: np.ndarray, py: np.ndarray):
     offset = np.stack([px, py, np.full_like(px, top)], axis=-1) - np.asarray(light.position, float)
     r2 = np.sum(offset**2, axis=-1)
     d = offset / np.sqrt(r2)[..., None]
-    return d, float(np.asarray(light.intensity)) * np.abs(d[..., 2]) / r2
+    density = float(np.asarray(light.intensity)) * np.abs(d[..., 2]) / r2
+    return d, density * emission(light, d[..., 2])
 
 
 def _leave(problem: DesignProblem, px, py, d):

@@ -24,8 +24,8 @@ import math
 import numpy as np
 from scipy.signal import fftconvolve
 
-from ..scene.scene import DirectionalLight
-from ..scene.sources import SunLight
+from ..scene.scene import DirectionalLight, PointLight
+from ..scene.sources import AreaLight, SunLight
 from .screen_geometry import flat_landing
 
 KERNEL_SAMPLES = 4096  # directions over the disc that draw the kernel
@@ -41,18 +41,22 @@ def source_kernel(problem, pose, screen, shape) -> np.ndarray | None:
     ``(k, k)``, ``k`` odd, summing to 1, rows along the screen's ``t``; None for a
     collimated or point light (no blur)."""
     light = problem.light
-    if not isinstance(light, SunLight):
+    if isinstance(light, SunLight):  # a disc of directions
+        samples, weights = light.directions(KERNEL_SAMPLES)
+        make, middle = DirectionalLight, np.asarray(light.direction, float)
+    elif isinstance(light, AreaLight):  # a die: seen through a pinhole at the centre
+        samples, weights = light.points(KERNEL_SAMPLES)
+        make, middle = PointLight, np.asarray(light.position, float)
+    else:
         return None
-    directions, weights = light.directions(KERNEL_SAMPLES)
     zero = np.zeros(1)
 
-    def landing(direction) -> np.ndarray:
-        lit = _with_light(problem, DirectionalLight(direction))
+    def landing(sample) -> np.ndarray:
+        lit = _with_light(problem, make(sample))
         s, t, _ = flat_landing(lit, pose, zero, zero)
         return np.array([s[0], t[0]])
 
-    centre = landing(np.asarray(light.direction, float))
-    offsets = np.array([landing(d) for d in directions]) - centre
+    offsets = np.array([landing(q) for q in samples]) - landing(middle)
     pixel = np.array(
         [(screen[1] - screen[0]) / shape[1], (screen[3] - screen[2]) / shape[0]], float
     )
@@ -126,8 +130,12 @@ def source_limit(setup) -> tuple[float, str | None]:
         return radius, None
     light = setup.light
     pixel_mm = 1000.0 * (setup.screen[1] - setup.screen[0]) / setup.target_shape[1]
+    if isinstance(light, SunLight):
+        what = f"a disc {2 * light.angular_radius_deg:.3g} degrees across"
+    else:
+        what = f"{light.shape} {1000 * light.size[0]:.3g} x {1000 * light.size[1]:.3g} mm"
     return radius, (
-        f"design: the source (a disc {2 * light.angular_radius_deg:.3g} degrees across) "
+        f"design: the source ({what}) "
         f"blurs each point of the caustic into a disc {radius:.2g} pixels in radius on the "
         f"screen ({radius * pixel_mm:.2g} mm): the target's detail finer than about "
         f"{2 * radius:.2g} pixels cannot be shown, and even the best pre-compensation "

@@ -90,6 +90,9 @@ class _Light:
     direction: np.ndarray | None
     position: np.ndarray | None
     intensity: float
+    # a point light that emits by Lambert's law facing down (``lambertian`` set: an
+    # `AreaLight`'s points): its intensity towards unit ``w`` is ``intensity |w_z|``
+    lambertian: bool = False
 
     @property
     def is_point(self) -> bool:
@@ -104,7 +107,7 @@ class _Light:
             intensity = float(np.asarray(getattr(light, "intensity", 1.0), dtype=np.float64))
             if not (math.isfinite(intensity) and intensity > 0.0):
                 raise ValueError(f"`scene.light.intensity` must be positive, got {intensity}")
-            return cls(None, p, intensity)
+            return cls(None, p, intensity, bool(getattr(light, "lambertian", False)))
         try:
             d = np.asarray(light.direction, dtype=np.float64)
         except AttributeError as err:
@@ -374,6 +377,8 @@ def _rays_to_surface(surf: _Surface, light: _Light, top: float, cx, cy):
         r2 = np.sum(w * w, axis=0)
         w = w / np.sqrt(r2)
         density = light.intensity * np.abs(w[2]) / r2
+        if light.lambertian:
+            density = density * np.abs(w[2])
         t, hx, hy = _intersect_rays(surf, w[0], w[1], w[2], cx, cy)
     else:
         assert light.direction is not None

@@ -572,6 +572,8 @@ class _Emitter:
         r2 = np.sum(d * d, axis=0)
         d = d / np.sqrt(r2)
         w = self.light.intensity * np.abs(self.axis @ d) * (ha * hb) / r2
+        if self.light.lambertian:
+            w = w * np.abs(d[2])
         return np.repeat(p, q.shape[1], axis=1), d, w
 
 

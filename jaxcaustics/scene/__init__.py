@@ -2,7 +2,8 @@
 
 - `scene.py`: `HeightField`, `DirectionalLight`, `PointLight`, `PlaneReceiver`, `Effects`,
   `WaterScene` and `LensScene` (plain data: Equinox modules).
-- `sources.py`: `SunLight`, a `DirectionalLight` with the Sun's disc.
+- `sources.py`: `SunLight`, a `DirectionalLight` with the Sun's disc, and `AreaLight`, a
+  `PointLight` with a flat emitter's size.
 - `mesh.py`: `Mesh` and `MeshScene`; `ellipsoid.py`: `Ellipsoid` and `EllipsoidScene`.
 - `surface.py`: the height field between its samples (Catmull-Rom bicubic) and rays
   meeting it; `waves.py`: procedural water surfaces.

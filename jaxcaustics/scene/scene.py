@@ -349,6 +349,13 @@ class PointLight(eqx.Module):
 Light = DirectionalLight | PointLight
 
 
+def emission(light, dz):
+    """A point light's intensity towards directions whose ``z`` components are `dz`,
+    relative to its `intensity`: 1 (isotropic), or ``|dz|`` for an emitter facing down
+    with ``lambertian`` set (`AreaLight`: Lambert's cosine law). NumPy or JAX."""
+    return abs(dz) if getattr(light, "lambertian", False) else 1.0
+
+
 def check_light(light) -> None:
     if not isinstance(light, (DirectionalLight, PointLight)):
         raise ValueError(

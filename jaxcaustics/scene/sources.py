@@ -1,4 +1,5 @@
-"""Extended light sources: the Sun's disc (`SunLight`).
+"""Extended light sources: the Sun's disc (`SunLight`) and a flat emitter near the
+element, an LED's die or a torch's exit (`AreaLight`).
 
 A caustic lens hangs under the Sun, not under a point at infinity: the Sun is a disc
 0.533 degrees across, so every point of the caustic is spread into a small disc on the
@@ -6,6 +7,11 @@ screen (2.3 mm across at 500 mm), which sets the finest detail a design can show
 `SunLight` is a `DirectionalLight` (its centre's direction) that also carries the disc:
 what takes only a direction renders its centre; the design, the reference and
 `verify_lens` integrate over the disc.
+
+An `AreaLight` is likewise a `PointLight` at its centre that also carries its size: a
+flat Lambertian emitter facing down, whose points each cast the caustic from a little
+aside; it is sampled by `AreaLight.points` (a stratified grid over a rectangle, a
+sunflower over a disc).
 
 The disc is sampled by `jaxcaustics.reference.disc_directions` (a sunflower pattern:
 even, stratified cover of the disc, with limb-darkening weights; NumPy, so that the
@@ -20,8 +26,8 @@ import equinox as eqx
 import numpy as np
 
 from .._checks import check_number
-from ..reference._sources import disc_directions
-from .scene import DirectionalLight
+from ..reference._sources import area_points, disc_directions
+from .scene import DirectionalLight, PointLight
 
 # the Sun's angular radius seen from the Earth, degrees (its mean: 0.2666 at 1 au)
 SUN_ANGULAR_RADIUS_DEG = 0.2665
@@ -84,3 +90,55 @@ class SunLight(DirectionalLight):
         return disc_directions(
             np.asarray(self.direction, float), self.angular_radius, samples, self.limb_darkening
         )
+
+
+AREA_SHAPES = ("rectangle", "disc")
+
+
+class AreaLight(PointLight):
+    """A flat emitter facing straight down, of `size` at `position`: an LED's die, a
+    torch's exit, a frosted lamp.
+
+    **Arguments:**
+
+    - `position`: shape ``(3,)``, metres: the emitter's centre, above everything it
+      lights.
+    - `size`: metres: ``(width along x, height along y)`` of a rectangle, or a disc's
+      diameter (one number, or ``shape="disc"``).
+    - `shape`: ``"rectangle"`` (default; a square for one number) or ``"disc"``.
+    - `intensity`: the whole emitter's radiant intensity straight down, W/sr (> 0).
+    - `lambertian`: the emitter follows Lambert's law (default): its intensity towards
+      a direction ``cos(angle from straight down)`` times `intensity` (for a lens 50 mm
+      across 100 mm below, 0.94 at the corners); False: each point radiates equally
+      everywhere, as a `PointLight`.
+
+    It is a `PointLight` at its centre: wherever one is taken, an `AreaLight` is too;
+    the design, the reference and `verify_lens` integrate over its area.
+    """
+
+    size: tuple[float, float] = eqx.field(static=True)
+    shape: str = eqx.field(static=True)
+    lambertian: bool = eqx.field(static=True)
+
+    def __init__(self, position, size, shape=None, intensity=1.0, lambertian=True):
+        super().__init__(position, intensity)
+        if shape is not None and shape not in AREA_SHAPES:
+            raise ValueError(f"`shape` must be one of {AREA_SHAPES}, got {shape!r}")
+        sizes = np.atleast_1d(np.asarray(size, dtype=float))
+        if sizes.shape not in ((1,), (2,)) or not np.all(np.isfinite(sizes) & (sizes > 0)):
+            raise ValueError(
+                f"`size` must be one positive length or (width, height) in metres, got {size!r}"
+            )
+        if shape == "disc" and sizes.shape != (1,):
+            raise ValueError(f"`size` of a disc is its diameter (one number), got {size!r}")
+        if not isinstance(lambertian, bool):
+            raise ValueError(f"`lambertian` must be True or False, got {lambertian!r}")
+        self.size = (float(sizes[0]), float(sizes[-1]))
+        self.shape = shape or "rectangle"
+        self.lambertian = lambertian
+
+    def points(self, samples: int) -> tuple[np.ndarray, np.ndarray]:
+        """About `samples` points over the emitter (a rectangle's: the centres of a
+        ``k x k`` grid of equal cells, ``k = round(sqrt(samples))``; a disc's: a
+        sunflower) and their weights, equal, summing to 1: ``((n, 3), (n,))``."""
+        return area_points(self, samples)

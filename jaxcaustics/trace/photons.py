@@ -25,7 +25,7 @@ from jaxtyping import Array, Bool, Float
 from ..scene.mesh import MeshScene
 from ..scene.mirror import MirrorScene
 from ..scene.outline import inside_outline
-from ..scene.scene import DirectionalLight, LensScene
+from ..scene.scene import DirectionalLight, LensScene, emission
 from ..scene.surface import ray_surface_hit
 from .intersect import face_normals, hit_on_triangle, nearest_hits, search_tree, vertex_normals
 from .optics import fresnel_transmittance, orthonormal_basis, reflect, refract_components
@@ -162,7 +162,7 @@ def _aperture_rays(scene, grid: tuple[int, int], band):
         offset = (px - lp[0], py - lp[1], scene.top - lp[2])
         r2 = sum(c * c for c in offset)
         d = _normalise(offset)
-        density = scene.light.intensity * jnp.abs(d[2]) / r2
+        density = scene.light.intensity * jnp.abs(d[2]) / r2 * emission(scene.light, d[2])
     if scene.outline != "rectangle":  # the mount stops the light outside the outline
         density = jnp.where(inside_outline(scene.outline, (x0, x1, y0, y1), u, v), density, 0.0)
     return px, py, d, density, cell_area
@@ -369,7 +369,7 @@ def mesh_photons(
         offset = plane - lp
         r2 = jnp.sum(offset**2, axis=-1)
         d0 = offset / jnp.sqrt(r2)[:, None]
-        density = scene.light.intensity * jnp.abs(d0 @ axis) / r2
+        density = scene.light.intensity * jnp.abs(d0 @ axis) / r2 * emission(scene.light, d0[:, 2])
 
     rows, cols = u.shape
     positions, directions, densities, valids, limited = [], [], [], [], []
