@@ -457,6 +457,9 @@ CLI_CASES = [
     # design
     (["design", "--size", "100000"], "--size"),  # a 7 TiB resize
     (["design", "--ior", "nan"], "--ior"),
+    (["design", "--light", "torch"], "--light"),
+    (["design", "--light", "led:3mm"], "--light"),  # no distance
+    (["design", "--light", "led:-3mm@100mm"], "--light"),
     (["design", "--ior", "0.5"], "--ior"),
     (["design", "--ior", "inf"], "--ior"),
     (["design", "--levels", "100000"], "--levels"),  # a 75 GiB jnp.zeros before the design

@@ -40,6 +40,7 @@ from ..io.files import save_figure, write_json
 from ..io.images import READ_EXTENSIONS, check_folder, read_image, write_exr, write_png
 from ..scene.mirror import MirrorScene
 from ..scene.scene import DirectionalLight
+from ..scene.sources import AreaLight, SunLight
 from .flags import (
     MAX_PIXELS,
     MAX_SIDE,
@@ -156,6 +157,16 @@ def add_design(subparsers) -> None:
     )
     add_light_angles(design, zenith_deg=0.0, azimuth_deg=0.0)
     design.add_argument(
+        "--light",
+        type=_light_kind,
+        default="collimated",
+        metavar="LIGHT",
+        help="collimated (default: a point at infinity), sun (the Sun's disc, 0.533 "
+        "degrees across: the design pre-compensates its blur), or led:SIZE@DISTANCE (a "
+        "square Lambertian die SIZE wide, DISTANCE from the top's centre against the "
+        "light's direction, e.g. led:3mm@100mm)",
+    )
+    design.add_argument(
         "--size",
         type=int_at_least(2, MAX_SIDE),
         default=128,
@@ -226,6 +237,30 @@ _WRITTEN = [
     "design.ckpt", "verification.json",
 ]  # fmt: skip
 _DESIGN_PHRASES = {"the target's size": "`--size`"}
+
+
+def _light_kind(text: str):
+    """`--light`: ``"collimated"``, ``"sun"`` or ``(size, distance)`` of ``led:S@D``."""
+    if text in ("collimated", "sun"):
+        return text
+    head, _, rest = text.partition(":")
+    size, at, distance = rest.partition("@")
+    if head != "led" or not at:
+        raise argparse.ArgumentTypeError(
+            f"expected collimated, sun or led:SIZE@DISTANCE (e.g. led:3mm@100mm), got {text!r}"
+        )
+    return length(size), length(distance)
+
+
+def _light(args, problem):
+    """The extended source of `--light`, along `--zenith` and `--azimuth`."""
+    centre = DirectionalLight.from_angles(args.zenith, args.azimuth)
+    if args.light == "sun":
+        return SunLight(np.asarray(centre.direction))
+    size, distance = args.light
+    d = np.asarray(centre.direction, float)
+    position = np.array([0.0, 0.0, problem.top]) - distance * d / np.linalg.norm(d)
+    return AreaLight(position, size)
 
 
 def _levels(text: str) -> list[int]:
@@ -359,6 +394,9 @@ def run_design(args: argparse.Namespace) -> int:
         _screen(args, problem.screen),
         problem.light,
     )
+    if args.light != "collimated":
+        light = _light(args, problem)
+        problem = DesignProblem(problem.element, problem.outline, problem.screen, light)
     inputs = [Path(p) for p in (args.target, args.outline) if p and Path(p).is_file()]
     spare_inputs(args.output, _WRITTEN, inputs)
     out = output_folder(args.output)
@@ -437,6 +475,11 @@ def run_design(args: argparse.Namespace) -> int:
         f"{design.predicted_error:.3f} (relative L2), {100 * design.dark_flux:.1f}% of the "
         "flux on dark pixels"
     )
+    if design.source_blur_px is not None:
+        print(
+            f"the source blurs each point of the caustic over {design.source_blur_px:.1f} "
+            "pixels (radius) on the screen; the design pre-compensates where it can"
+        )
     for note in design.warnings:  # again, after the progress bar, in the flags' words
         print(f"warning: {translate(note, _DESIGN_FLAGS, _DESIGN_PHRASES)}")
     print((out / "lens_report.txt").read_text() if (out / "lens_report.txt").exists() else "")
