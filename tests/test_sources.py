@@ -233,3 +233,29 @@ def test_the_cli_places_an_led_die_against_the_light_above_the_top():
     np.testing.assert_allclose(np.asarray(die.position), [0.0, 0.0, 0.31 + 0.1], atol=1e-9)
     args = argparse.Namespace(light="sun", zenith=20.0, azimuth=45.0)
     assert isinstance(_light(args, problem), jc.SunLight)
+
+
+def test_render_under_the_sun_samples_its_disc_as_the_reference_does():
+    """`jc.render` under a `SunLight` renders each of `source_samples` directions and
+    averages them: against the reference sampling the Sun on the bump lens, as near as
+    the collimated render is to the collimated reference (measured against 256
+    directions at 4096^2 photons: 0.0083 at 16 samples, 0.0040 at 64; collimated render
+    against collimated reference 0.012), and far from the collimated render, which the
+    Sun's centre alone would give (0.100)."""
+    scene = _bump_lens(3e-4, jc.SunLight())
+    image, stats = jc.render(scene, "triangles", source_samples=64, return_stats=True)
+    assert stats["source_samples"] == 64
+    sampled = reference.trace_lens(scene, 2048, source_samples=64)
+    centre = eqx.tree_at(lambda s: s.light, scene, jc.DirectionalLight([0.0, 0.0, -1.0]))
+    collimated = np.asarray(jc.render(centre, "triangles"))
+    floor = _error(collimated, reference.trace_lens(centre, 2048))
+    assert _error(np.asarray(image), sampled) < max(1.5 * floor, 0.01)
+    assert _error(collimated, sampled) > 5 * _error(np.asarray(image), sampled)
+
+
+def test_render_refuses_source_samples_without_an_extended_light():
+    scene = _bump_lens(3e-4, jc.DirectionalLight([0.0, 0.0, -1.0]), n=8)
+    with pytest.raises(ValueError, match="`source_samples`"):
+        jc.render(scene, "triangles", source_samples=4)
+    with pytest.raises(ValueError, match="`tolerance`"):
+        jc.render(_bump_lens(3e-4, jc.SunLight(), n=8), tolerance=0.05)

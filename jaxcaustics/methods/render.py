@@ -13,6 +13,7 @@ from .._checks import check_bool, check_number
 from ..scene.scene import WaterScene
 from .base import Method, worst
 from .choose import DEFAULT_MARGIN, as_mesh_scene, choose_method
+from .extended import is_extended, render_over_source
 from .refine import DEFAULT_BUDGET_S, refinable_method, refine_to_tolerance
 from .registry import as_method, method_class
 
@@ -80,6 +81,7 @@ def render(
     refine: bool | None = None,
     budget_s: float | None = None,
     return_stats: bool = False,
+    source_samples: int | None = None,
     **knobs: Any,
 ):
     """Render the caustics of `scene` on its receiver.
@@ -120,6 +122,10 @@ def render(
       1% of the light (beyond its window), spot lights that do not carry it, and caustic
       triangles whose scene's interface limit drops more than 1% of the light through
       the object warn (`warnings.warn`, with the fraction and the knob to change).
+    - `source_samples`: under an extended light (`SunLight`, `AreaLight`), how many of
+      its directions or points are rendered and averaged (stratified; default
+      `SOURCE_SAMPLES`, 16: `jaxcaustics.methods.extended`); ``stats["source_samples"]``.
+      With a collimated or point light it must be None.
     - `**knobs`: the knobs of the named method (the fields of its class; see `two_pass`,
       `caustic_triangles`, `caustics_mapping`, `adaptive_caustic_map`, `spot_lights`).
 
@@ -151,6 +157,27 @@ def render(
         )
     name = method.name if isinstance(method, Method) else method
     stats: dict[str, Any] = {}
+    if is_extended(getattr(scene, "light", None)):
+        if tolerance is not None:
+            raise ValueError(
+                "`tolerance` under an extended `scene.light` (a SunLight or AreaLight) is not "
+                "estimated: name a `method` and its knobs (each of `source_samples` renders "
+                "uses them)"
+            )
+        one = as_method(method, knobs, scene)
+        _warn_unsupported(one, scene)
+
+        def render_one(lit):
+            result = one(lit)
+            _warn_missed(one, result.missed_flux_fraction)
+            return result.image, {"missed_flux_fraction": result.missed_flux_fraction} | (
+                result.stats
+            )
+
+        image, stats = render_over_source(render_one, scene, source_samples)
+        return (image, stats) if return_stats else image
+    if source_samples is not None:
+        raise ValueError("`source_samples` applies only under a SunLight or an AreaLight")
     if tolerance is None:
         method = as_method(method, knobs, scene)
         _warn_unsupported(method, scene)
