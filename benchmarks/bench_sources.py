@@ -27,7 +27,6 @@ Writes ``benchmarks/results/sources.md`` and ``sources.json``.
 
 from __future__ import annotations
 
-import argparse
 import json
 import sys
 import tempfile
@@ -35,7 +34,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).parent))  # the harness beside this script
 from bench_outline import judge, target  # noqa: E402
-from harness import once, run_rows  # noqa: E402
+from harness import once, rows_main  # noqa: E402
 
 NAME = "sources"
 JUDGES = ((2048, 64), (4096, 256))  # (photons per axis, source samples)
@@ -148,11 +147,7 @@ def report(rows: dict) -> str:
 
 
 def main(argv=None) -> None:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    parser.add_argument("--rows", default=",".join(ROWS))
-    parser.add_argument("--one", help=argparse.SUPPRESS)
-    args = parser.parse_args(argv)
-    run_rows(NAME, __file__, args.rows, one, report, args.one)
+    rows_main(NAME, __file__, ROWS, one, report, __doc__, argv)
 
 
 if __name__ == "__main__":

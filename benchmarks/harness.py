@@ -7,6 +7,7 @@ tests do, puts its folder there first).
 
 from __future__ import annotations
 
+import argparse
 import datetime
 import json
 import os
@@ -183,6 +184,16 @@ def run_rows(name: str, script: str, rows_arg: str, one, report, argv_one=None) 
         rows[row] = json.loads(proc.stdout.strip().splitlines()[-1])
         print(row, f"{rows[row]['total_s']:.1f} s", rows[row]["reference"], flush=True)
         write_results(name, rows, report(rows), env=env)
+
+
+def rows_main(name: str, script: str, rows, one, report, doc: str, argv=None) -> None:
+    """The command line of a benchmark of `rows` (`run_rows`): ``--rows A,B`` (default
+    all), and the hidden ``--one ROW`` its child processes run."""
+    parser = argparse.ArgumentParser(description=doc.split("\n")[0])
+    parser.add_argument("--rows", default=",".join(rows))
+    parser.add_argument("--one", help=argparse.SUPPRESS)
+    args = parser.parse_args(argv)
+    run_rows(name, script, args.rows, one, report, args.one)
 
 
 def pick(parser, text: str, known, what: str) -> list[str]:
