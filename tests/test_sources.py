@@ -235,6 +235,25 @@ def test_the_cli_places_an_led_die_against_the_light_above_the_top():
     assert isinstance(_light(args, problem), jc.SunLight)
 
 
+def test_render_under_a_die_is_its_points_rendered_and_averaged():
+    """`jc.render` under an `AreaLight` renders each of `source_samples` points as a
+    tiny Lambertian die and averages them with the points' weights."""
+    die = jc.AreaLight([0.0, 0.0, 0.9], 0.02)  # its image on the screen: 4 pixels
+    scene = _bump_lens(3e-4, die, n=16)
+    image = np.asarray(jc.render(scene, "triangles", photons=65, source_samples=4))
+    points, weights = die.points(4)
+    by_hand = sum(
+        w * np.asarray(jc.render(eqx.tree_at(lambda s: s.light, scene,
+                                             jc.AreaLight(p, 1e-9)), "triangles", photons=65))
+        for p, w in zip(points, weights, strict=True)
+    )  # fmt: skip
+    np.testing.assert_allclose(image, by_hand, rtol=1e-5, atol=1e-6)
+    centre = np.asarray(jc.render(eqx.tree_at(lambda s: s.light, scene, jc.AreaLight(
+        die.position, 1e-9)), "triangles", photons=65))  # fmt: skip
+    assert _error(image, centre) > 0.01  # the die's points do cast it aside
+
+
+@pytest.mark.slow  # 13 s; its sampling is checked exactly in the test above
 def test_render_under_the_sun_samples_its_disc_as_the_reference_does():
     """`jc.render` under a `SunLight` renders each of `source_samples` directions and
     averages them: against the reference sampling the Sun on the bump lens, as near as
