@@ -648,3 +648,18 @@ def test_a_runaway_solver_keeps_the_level_start_and_says_so():
     # the start's ripple is 0.01 m peak to peak; the runaway's, 2.8e20 m
     assert np.all(np.isfinite(result.heights)) and np.ptp(result.heights) < 0.02
     assert np.isfinite(result.image_error)
+
+
+def test_a_blank_too_thin_for_the_start_is_refused_before_the_rest(monkeypatch):
+    """The transport start's relief through the blank was found after the refinement
+    and the prediction (or named the internal `surface` when the refinement built its
+    scene); now right after the start, naming `thickness` and what to change."""
+
+    def predicted(*args, **kwargs):
+        raise AssertionError("the prediction ran before the relief was checked")
+
+    monkeypatch.setattr(design_module, "predict_caustic", predicted)
+    target = np.ones((16, 16))
+    target[4:8, 4:8] = 6.0
+    with pytest.raises(ValueError, match="`thickness` 0.0001 m is too thin.*`max_relief`"):
+        jc.design_lens(target, width=0.05, height=0.05, thickness=1e-4, screen_distance=0.25)

@@ -106,6 +106,8 @@ def solve_in_rounds(
 
     def transport(state):
         h, stage_reports, result = start.solve(setup, history, step_done)
+        if setup.max_relief is None:  # (folded at the end otherwise) said before the rest
+            setup.check_thickness(h)
         reports.extend(stage_reports)
         results.append(result)
         return store(state, 0, h)

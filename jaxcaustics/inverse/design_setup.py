@@ -69,7 +69,8 @@ class Setup:
         if self.thickness + float(np.min(heights)) <= 0.0:
             raise ValueError(
                 f"`thickness` {self.thickness} m is too thin for the design: its relief is "
-                f"{relief:.4g} m, so the surface dips through the bottom face"
+                f"{relief:.4g} m, so the surface dips through the bottom face: a thicker "
+                "blank, or `max_relief` (folds the relief into Fresnel zones)"
             )
 
     def element_scene(self, heights) -> LensScene | MirrorScene:
