@@ -41,6 +41,7 @@ def source_kernel(problem, pose, screen, shape) -> np.ndarray | None:
     ``(k, k)``, ``k`` odd, summing to 1, rows along the screen's ``t``; None for a
     collimated or point light (no blur)."""
     light = problem.light
+    make: type[DirectionalLight] | type[PointLight]
     if isinstance(light, SunLight):  # a disc of directions
         samples, weights = light.directions(KERNEL_SAMPLES)
         make, middle = DirectionalLight, np.asarray(light.direction, float)

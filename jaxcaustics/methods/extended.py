@@ -49,7 +49,8 @@ def render_over_source(render_one: Callable, scene, samples: int | None):
     """``render_one(scene)`` (``(image, stats)``) averaged over `samples` of the scene's
     extended light: ``(image, stats)``, the stats' missed fractions the largest."""
     lights, weights = sample_lights(scene.light, SOURCE_SAMPLES if samples is None else samples)
-    image, stats = None, {}
+    image = None
+    stats: dict = {}
     for light, weight in zip(lights, weights, strict=True):
         part, info = render_one(eqx.tree_at(lambda s: s.light, scene, light))
         image = weight * part if image is None else image + weight * part
