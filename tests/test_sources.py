@@ -189,7 +189,8 @@ def test_a_design_for_the_sun_reports_its_blur_and_predicts_what_is_seen(sun_des
     # 2 m x tan(0.2665 deg) over 100 mm / 32 pixels: 3.0 pixels (splat included)
     assert design.source_blur_px == pytest.approx(3.0, abs=0.3)
     # the prediction is the blurred caustic: no sharper than the kernel allows
-    raw = jc.render(design.scene, "triangles")
+    centre = jc.DirectionalLight(np.asarray(design.scene.light.direction))
+    raw = jc.render(eqx.tree_at(lambda s: s.light, design.scene, centre), "triangles")
     kernel = source_blur.source_kernel(design.problem, None, np.asarray(
         design.scene.receiver.extent), target.shape)  # fmt: skip
     assert _error(np.asarray(design.predicted), source_blur.blur(np.asarray(raw), kernel)) < 0.05
