@@ -279,3 +279,11 @@ def test_render_refuses_source_samples_without_an_extended_light():
         jc.render(scene, "triangles", source_samples=4)
     with pytest.raises(ValueError, match="`tolerance`"):
         jc.render(_bump_lens(3e-4, jc.SunLight(), n=8), tolerance=0.05)
+
+
+def test_an_extended_light_under_jit_says_what_to_do():
+    import jax
+
+    scene = _bump_lens(3e-4, jc.SunLight(), n=8)
+    with pytest.raises(ValueError, match="`scene.light`: a SunLight's samples"):
+        jax.jit(lambda s: jc.render(s, "triangles", photons=17, window=4))(scene)

@@ -18,6 +18,7 @@ from __future__ import annotations
 from collections.abc import Callable
 
 import equinox as eqx
+import jax
 import jax.numpy as jnp
 import numpy as np
 
@@ -37,6 +38,13 @@ def sample_lights(light, samples: int) -> tuple[list, np.ndarray]:
     """`samples` lights covering the extended `light` (collimated ones over the Sun's
     disc, tiny Lambertian dies over a die) and their weights, summing to 1."""
     samples = check_int(samples, "source_samples", 1, MAX_SOURCE_SAMPLES)
+    where = light.direction if isinstance(light, SunLight) else light.position
+    if isinstance(where, jax.core.Tracer):
+        raise ValueError(
+            f"`scene.light`: a {type(light).__name__}'s samples are drawn from concrete "
+            "values; under `jax.jit` pass the scene as a static argument, or render outside "
+            "`jit` (each sample's render is compiled once either way)"
+        )
     if isinstance(light, SunLight):
         directions, weights = light.directions(samples)
         return [DirectionalLight(d) for d in directions], weights
