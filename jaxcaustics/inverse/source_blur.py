@@ -6,9 +6,12 @@ screen; over the disc the caustic is the collimated one convolved with the sourc
 image on the screen (`source_kernel`). The kernel is the flat element's: the directions
 of the disc are traced through the flat blank (glass or mirror) to the screen (posed or
 the ground), where they land on an ellipse or a disc (for the quickstart lens at 500 mm:
-a disc 2.9 pixels in radius). The element's slopes change the disc's size a little
-(a slope of 0.1 focuses or spreads the cone by a few percent), which the convolution
-leaves out; the reference samples the source itself.
+a disc 2.7 pixels in radius; 3.1 by the kernel's second moment, bilinear splatting
+included; 1 s for its 4096 directions). The element's own focusing reshapes the disc,
+which the convolution leaves out: against the reference sampling the Sun on a lens with
+two bumps (48^2 pixels, 1.1-pixel blur) it is 0.005 off (relative L2) where the caustic
+peaks at 1.24 times the mean, 0.021 at 2.45 and 0.054 at 5.8 (`tests/test_sources.py`);
+`jaxcaustics.render` and the reference sample the source instead.
 
 The design aims its transport at the target deconvolved by the kernel (Richardson-Lucy,
 what the literature uses for this; written here with the boundary correction that
@@ -21,6 +24,7 @@ from __future__ import annotations
 
 import math
 
+import equinox as eqx
 import numpy as np
 from scipy.signal import fftconvolve
 
@@ -65,8 +69,6 @@ def source_kernel(problem, pose, screen, shape) -> np.ndarray | None:
 
 
 def _with_light(problem, light):
-    import equinox as eqx
-
     return eqx.tree_at(lambda p: p.light, problem, light)
 
 
