@@ -287,3 +287,11 @@ def test_an_extended_light_under_jit_says_what_to_do():
     scene = _bump_lens(3e-4, jc.SunLight(), n=8)
     with pytest.raises(ValueError, match="`scene.light`: a SunLight's samples"):
         jax.jit(lambda s: jc.render(s, "triangles", photons=17, window=4))(scene)
+
+
+def test_a_verification_under_a_source_takes_four_times_the_photons_per_side():
+    from jaxcaustics.inverse.verify import default_photons
+
+    assert default_photons(jc.DirectionalLight([0, 0, -1.0]), (32, 48)) == 8 * 48
+    assert default_photons(jc.SunLight(), (32, 48)) == 32 * 48
+    assert default_photons(jc.AreaLight([0, 0, 1.0], 0.003), (32, 48)) == 32 * 48

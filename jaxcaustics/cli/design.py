@@ -35,7 +35,7 @@ from ..inverse.problem import (
     problem_to_dict,
 )
 from ..inverse.solvers import SOLVER_NAMES
-from ..inverse.verify import verify_heights, verify_lens
+from ..inverse.verify import default_photons, verify_heights, verify_lens
 from ..io.files import save_figure, write_json
 from ..io.images import READ_EXTENSIONS, check_folder, read_image, write_exr, write_png
 from ..scene.mirror import MirrorScene
@@ -455,12 +455,12 @@ def run_design(args: argparse.Namespace) -> int:
         "files": {k: str(v) for k, v in paths.items()},
     }
     if args.verify and not _on_the_ground(design.scene):
-        photons = 8 * max(design.target.shape)
+        photons = default_photons(design.scene.light, design.target.shape)
         error, _ = verify_heights(design.scene, design.target, photons_per_axis=photons)
         print(f"verification: the heights traced by the reference miss the target by {error:.4f}")
         summary["verification"] = {"heights": error}
     elif args.verify:
-        photons = 8 * max(design.target.shape)  # 64 photons per pixel on average
+        photons = default_photons(design.scene.light, design.target.shape)
         report = verify_lens(design.scene, design.target, photons_per_axis=photons)
         print(report)
         summary["verification"] = {

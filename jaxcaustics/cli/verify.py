@@ -18,7 +18,7 @@ import numpy as np
 
 from ..inverse.problem import Mirror, problem_from_dict
 from ..inverse.screen_geometry import screen_pose
-from ..inverse.verify import MAX_PHOTONS_PER_AXIS, verify_heights, verify_lens
+from ..inverse.verify import MAX_PHOTONS_PER_AXIS, default_photons, verify_heights, verify_lens
 from ..io.files import write_json
 from ..io.images import read_exr
 from ..scene.mirror import MirrorScene
@@ -38,7 +38,8 @@ def add_verify(subparsers) -> None:
         "--photons",
         type=int_at_least(16, MAX_PHOTONS_PER_AXIS),
         default=None,
-        help="the reference's photons per axis (default: 8 per target pixel side)",
+        help="the reference's photons per axis (default: 8 per target pixel side; 32 under "
+        "the Sun or an LED, whose samples share them)",
     )
     verify.set_defaults(func=run_verify)
 
@@ -101,7 +102,7 @@ def exported_lens(folder: Path) -> tuple[LensScene | MirrorScene, np.ndarray]:
 
 def run_verify(args: argparse.Namespace) -> int:
     scene, target = exported_lens(args.folder)
-    photons = args.photons or min(8 * max(target.shape), MAX_PHOTONS_PER_AXIS)
+    photons = args.photons or default_photons(scene.light, target.shape)
     figures: dict = {"photons_per_axis": photons}
     if isinstance(scene, MirrorScene) or scene.screen_pose is not None:
         error, _ = verify_heights(scene, target, photons_per_axis=photons)

@@ -20,7 +20,7 @@ from .._checks import check_int, check_real_array
 from ..scene.mesh import Mesh, MeshScene
 from ..scene.mirror import MirrorScene
 from ..scene.scene import DirectionalLight, LensScene, PlaneReceiver
-from ..scene.sources import SunLight
+from ..scene.sources import AreaLight, SunLight
 from .export import lens_solid
 from .lens_setup import check_mask
 
@@ -29,6 +29,16 @@ SUN_DIAMETER_DEG = 0.53
 # most directions over the Sun's disc (each one a trace)
 MAX_PHOTONS_PER_AXIS = 1 << 14
 MAX_SUN_SAMPLES = 256
+
+
+def default_photons(light, shape) -> int:
+    """The reference's photons per axis that a verification takes by default: 8 per
+    target pixel side (64 a pixel), or 32 under an extended source, whose samples share
+    them out (measured on a 32^2 camera under the Sun, 64 directions: 64 photons a pixel
+    judged the design 0.135 off, 1024 a pixel 0.0545, 4096 a pixel 0.053); at most
+    `MAX_PHOTONS_PER_AXIS`."""
+    per_side = 32 if isinstance(light, (SunLight, AreaLight)) else 8
+    return min(per_side * max(shape), MAX_PHOTONS_PER_AXIS)
 
 
 def _image(value, name: str, shape=None) -> np.ndarray:

@@ -124,7 +124,7 @@ def render(
       the object warn (`warnings.warn`, with the fraction and the knob to change).
     - `source_samples`: under an extended light (`SunLight`, `AreaLight`), how many of
       its directions or points are rendered and averaged (stratified; default
-      `SOURCE_SAMPLES`, 16: `jaxcaustics.methods.extended`); ``stats["source_samples"]``.
+      `SOURCE_SAMPLES`, 64: `jaxcaustics.methods.extended`); ``stats["source_samples"]``.
       With a collimated or point light it must be None.
     - `**knobs`: the knobs of the named method (the fields of its class; see `two_pass`,
       `caustic_triangles`, `caustics_mapping`, `adaptive_caustic_map`, `spot_lights`).
