@@ -184,6 +184,8 @@ def sun_design():
     return design, target, [str(w.message) for w in caught]
 
 
+@pytest.mark.slow  # with its design, 40 s in all: the time budget of the default run;
+# the designs for the Sun are judged in benchmarks/results/sources.md
 def test_a_design_for_the_sun_reports_its_blur_and_predicts_what_is_seen(sun_design):
     design, target, _ = sun_design
     # 2 m x tan(0.2665 deg) over 100 mm / 32 pixels: 3.0 pixels (splat included)
@@ -196,6 +198,8 @@ def test_a_design_for_the_sun_reports_its_blur_and_predicts_what_is_seen(sun_des
     assert _error(np.asarray(design.predicted), source_blur.blur(np.asarray(raw), kernel)) < 0.05
 
 
+@pytest.mark.slow  # with its design, 40 s in all: the time budget of the default run;
+# the designs for the Sun are judged in benchmarks/results/sources.md
 def test_a_target_finer_than_the_sun_allows_is_warned_with_the_number(sun_design):
     _, _, caught = sun_design
     said = [m for m in caught if "blurs each point of the caustic" in m]
@@ -203,6 +207,8 @@ def test_a_target_finer_than_the_sun_allows_is_warned_with_the_number(sun_design
     assert "pixels in radius" in said[0] and "relative L2" in said[0]
 
 
+@pytest.mark.slow  # with its design, 40 s in all: the time budget of the default run;
+# the designs for the Sun are judged in benchmarks/results/sources.md
 def test_the_design_for_the_sun_beats_the_collimated_one_under_the_sun(sun_design):
     """Judged by the reference sampling the Sun (its noise: below 0.003 here)."""
     design, target, _ = sun_design
