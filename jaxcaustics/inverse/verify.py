@@ -96,22 +96,10 @@ def solid_scene(scene: LensScene, *, samples=None) -> MeshScene:
 
 
 def _sun_directions(light: DirectionalLight, samples: int) -> list[np.ndarray]:
-    """`samples` directions spread evenly (sunflower pattern) over the Sun's disc."""
-    d = np.asarray(light.direction, float)
-    d = d / np.linalg.norm(d)
-    helper = np.array([1.0, 0.0, 0.0]) if abs(d[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
-    e1 = np.cross(d, helper)
-    e1 /= np.linalg.norm(e1)
-    e2 = np.cross(d, e1)
-    radius = math.tan(math.radians(SUN_DIAMETER_DEG / 2))
-    golden = math.pi * (3.0 - math.sqrt(5.0))
-    out = []
-    for k in range(samples):
-        r = radius * math.sqrt((k + 0.5) / samples)
-        a = k * golden
-        v = d + r * (math.cos(a) * e1 + math.sin(a) * e2)
-        out.append(v / np.linalg.norm(v))
-    return out
+    """`samples` directions spread evenly (sunflower pattern) over the Sun's disc
+    (`reference.disc_directions`, which the reference and `SunLight` sample by)."""
+    radius = math.radians(SUN_DIAMETER_DEG / 2)
+    return list(reference.disc_directions(np.asarray(light.direction, float), radius, samples)[0])
 
 
 @dataclasses.dataclass(frozen=True)
