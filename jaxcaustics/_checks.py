@@ -20,7 +20,6 @@ from __future__ import annotations
 
 import math
 import numbers
-import warnings
 
 import jax
 import jax.numpy as jnp
@@ -137,6 +136,7 @@ def check_array(value, name: str, shape: tuple | None = None, *, finite: bool = 
     any number of leading axes (``(None, 3)``: ``(P, 3)``; ``(..., 3)``: ``(..., 3)``);
     with `finite` NaN and infinities are refused. A traced value (under `jax.jit`,
     `jax.grad`, `jax.vmap`) is checked for its kind and shape only."""
+    arr: jax.Array | np.ndarray
     if isinstance(value, jax.Array):  # concrete or traced
         if value.dtype.kind not in "iuf":
             raise ValueError(f"`{name}` must be real numbers, got dtype {value.dtype}")
@@ -216,26 +216,3 @@ def check_photon_work(photons: int, batches: int, knob: str) -> None:
 
 
 # --------------------------------------------------------------------------- renamed keywords
-
-
-def renamed_keyword(where: str, old: str, new: str, old_value, new_value):
-    """The value of keyword `new`, or of its deprecated name `old` (a `DeprecationWarning`
-    saying so) when the caller passed `old_value` (not ``None``); both at once is a
-    `ValueError`."""
-    if old_value is None:
-        return new_value
-    if new_value is not None:
-        raise ValueError(f"{where}: pass `{new}` only (`{old}` is its deprecated name)")
-    warnings.warn(
-        f"{where}: `{old}` is deprecated, pass `{new}` (in jaxcaustics, as in Optimistix, "
-        "`throw` means raising on failure)",
-        DeprecationWarning,
-        stacklevel=3,
-    )
-    return old_value
-
-
-def is_distance(value) -> bool:
-    """Whether `value` is a number that is not a bool: the old `throw` (a distance in
-    metres) as opposed to the new one (raise or not)."""
-    return isinstance(value, numbers.Real) and not isinstance(value, bool | np.bool_)

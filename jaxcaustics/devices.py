@@ -268,7 +268,8 @@ def stack_scenes(scenes: Sequence):
         raise ValueError(f"`scenes` must hold scenes, got a {type(first).__name__}")
     for i, scene in enumerate(scenes[1:], start=1):
         found = _difference(first, scene, "scene")
-        if found is None and jax.tree.structure(first) != jax.tree.structure(scene):
+        # jaxlib ships no types for PyTreeDef (mypy sees an unresolved type)
+        if found is None and jax.tree.structure(first) != jax.tree.structure(scene):  # type: ignore[operator]
             found = "its pytree structure differs"
         if found:
             raise ValueError(
@@ -318,3 +319,6 @@ def pad_leading(x, size: int):
     item."""
     xp = np if isinstance(x, np.ndarray) else jnp
     return xp.concatenate([x, xp.repeat(x[-1:], size - x.shape[0], axis=0)])
+
+
+__all__ = ["device_mesh", "map_sharded", "stack_scenes", "unstack_scenes", "gather_to_host"]

@@ -39,7 +39,7 @@ from ..inverse.verify import default_photons, verify_heights, verify_lens
 from ..io.files import save_figure, write_json
 from ..io.images import READ_EXTENSIONS, check_folder, read_image, write_exr, write_png
 from ..scene.mirror import MirrorScene
-from ..scene.scene import DirectionalLight
+from ..scene.scene import DirectionalLight, LensScene
 from ..scene.sources import AreaLight, SunLight
 from .flags import (
     MAX_PIXELS,
@@ -460,6 +460,7 @@ def run_design(args: argparse.Namespace) -> int:
         print(f"verification: the heights traced by the reference miss the target by {error:.4f}")
         summary["verification"] = {"heights": error}
     elif args.verify:
+        assert isinstance(design.scene, LensScene)  # (for mypy: `_on_the_ground`)
         photons = default_photons(design.scene.light, design.target.shape)
         report = verify_lens(design.scene, design.target, photons_per_axis=photons)
         print(report)

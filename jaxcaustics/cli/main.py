@@ -366,7 +366,7 @@ def _render_water(args: argparse.Namespace) -> int:
     if n == "auto" or m == "auto":
         auto_n, auto_m = 1, 0
         for t in times:
-            fn, fm = jc.auto_window(scene_at(t), args.hit_iterations, args.supersample)
+            fn, fm = jc.internal.auto_window(scene_at(t), args.hit_iterations, args.supersample)
             auto_n, auto_m = max(auto_n, fn), max(auto_m, fm)
         # no wider than the receiver (a window past every pixel was refused naming
         # `samples_x`, on a tiny --extent)
@@ -419,7 +419,7 @@ def _render_water(args: argparse.Namespace) -> int:
         png = args.output / f"caustics_{k:04d}.png"
         exr = args.output / f"caustics_{k:04d}.exr"
         jc.write_png(png, image, exposure=exposure)
-        jc.write_exr(exr, image)
+        jc.io.write_exr(exr, image)
         written += [png, exr]
 
     missed_arr = np.asarray(missed)  # (frames, channels)

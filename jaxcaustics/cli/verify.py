@@ -83,6 +83,7 @@ def exported_lens(folder: Path) -> tuple[LensScene | MirrorScene, np.ndarray]:
     receiver = PlaneReceiver(extent, target.shape)
     pose = screen_pose(problem)
     if isinstance(problem.element, Mirror):
+        assert pose is not None  # (for mypy: a mirror's screen always has a pose)
         mirror = MirrorScene(
             surface, problem.light, receiver, pose, outline=problem.outline.lens_outline
         )

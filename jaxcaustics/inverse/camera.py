@@ -9,6 +9,7 @@ Richardson-Lucy, a maintained implementation, rather than a hand-written one).
 from __future__ import annotations
 
 import math
+from typing import cast
 
 import jax
 import jax.numpy as jnp
@@ -46,9 +47,12 @@ def camera_blur(image: Array, sigma: float, boundary: str) -> Array:
         pad[axis] = (radius, radius)
         padded = jnp.pad(image, pad, mode=mode)
         size = image.shape[axis]
-        image = sum(
-            float(w) * jax.lax.slice_in_dim(padded, k, k + size, axis=axis)
-            for k, w in enumerate(taps)
+        image = cast(
+            Array,  # `sum` starts from 0, which mypy keeps in its type
+            sum(
+                float(w) * jax.lax.slice_in_dim(padded, k, k + size, axis=axis)
+                for k, w in enumerate(taps)
+            ),
         )
     return image
 

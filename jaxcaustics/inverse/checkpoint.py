@@ -164,7 +164,7 @@ def load_checkpoint(path: str | os.PathLike, like: Any) -> tuple[Any, int]:
 
 
 def run_rounds(
-    rounds: Sequence[Callable[[Any], Any]],
+    rounds: Sequence[Callable[..., Any]],  # ``round(state[, report])``, see `live`
     state: Any,
     *,
     checkpoint: str | os.PathLike | None = None,

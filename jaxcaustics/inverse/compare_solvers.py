@@ -14,6 +14,7 @@ from ..methods.twopass import two_pass
 from ..scene.scene import DirectionalLight, HeightField, PlaneReceiver, WaterScene
 from .numerics import resample_heights
 from .recover import SOLVERS, recover_surface
+from .solvers import SolverName
 
 
 def compare_solvers(
@@ -24,7 +25,7 @@ def compare_solvers(
     light: DirectionalLight,
     image_shape: Sequence[int],
     ior: float = 1.333,
-    solvers: Sequence[str] = SOLVERS,
+    solvers: Sequence[SolverName] = SOLVERS,
     solver_options: dict[str, dict[str, Any]] | None = None,
     **options: Any,
 ) -> list[dict[str, Any]]:

@@ -32,8 +32,9 @@ from typing import Any, Literal
 import numpy as np
 import optimistix as optx
 
-from .._checks import check_bool, check_real_array, is_distance, renamed_keyword
+from .._checks import check_bool, check_real_array
 from .._warnings import warn_user
+from ..scene.mirror import MirrorScene
 from ..scene.scene import DirectionalLight, LensScene, PointLight
 from .checkpoint import check_checkpoint
 from .design_rounds import solve_in_rounds
@@ -81,7 +82,7 @@ class LensDesign:
     """
 
     heights: np.ndarray
-    scene: LensScene
+    scene: LensScene | MirrorScene
     predicted: np.ndarray
     target: np.ndarray
     loss_history: list[float]
@@ -206,21 +207,14 @@ def design(
 _solve = solve_in_rounds
 
 
-def _renamed_keywords(where: str, screen_distance, throw, throw_errors):
-    """``(screen_distance, throw)`` from the keywords before their rename: ``throw=0.5``
-    was the screen distance (a number, not a bool) and ``throw_errors`` the raising flag
-    now called `throw`, each with a `DeprecationWarning`."""
-    if is_distance(throw):
-        screen_distance = renamed_keyword(where, "throw", "screen_distance", throw, screen_distance)
-        throw = True
-    if throw_errors is not None:
-        throw = renamed_keyword(where, "throw_errors", "throw", throw_errors, None)
+def _required_screen_distance(where: str, screen_distance):
+    """`screen_distance`, which has no default (a `ValueError` naming it when missing)."""
     if screen_distance is None:
         raise ValueError(
             f"{where}: `screen_distance` is required (metres from the lens's bottom face to "
             "the screen)"
         )
-    return screen_distance, throw
+    return screen_distance
 
 
 def design_lens(
@@ -248,7 +242,6 @@ def design_lens(
     predict_photons: int | None = None,
     max_relief: float | None = None,
     throw: bool = True,
-    throw_errors: bool | None = None,
     callback: Callable[[dict], None] | None = None,
     initial=None,
     start: Literal["transport", "poisson"] = "transport",
@@ -325,9 +318,7 @@ def design_lens(
       solution, which folds where the target is dark; 0.5 by default).
     - `predict_photons`: photon grid of the predicted caustic (default 4 per pixel side;
       caustic triangles, their window at most 16 pixels).
-    - `throw`: raise if a level's solver fails (otherwise the result says so). Before
-      the rename, ``throw=<metres>`` was `screen_distance` and `throw_errors` this flag:
-      both still work, with a `DeprecationWarning`.
+    - `throw`: raise if a level's solver fails (otherwise the result says so).
     - `callback`: called after every solver step with a dict (level, shape, step, loss,
       and the number of residuals the loss sums: ``loss / residuals`` is comparable
       between levels; the transport start's loss is already a mean).
@@ -346,7 +337,7 @@ def design_lens(
     `warn_error`, or whose levels stopped at `max_steps`, is returned with a
     `warnings.warn` that says so and what to change (also in `LensDesign.warnings`).
     """
-    screen_distance, throw = _renamed_keywords("design_lens", screen_distance, throw, throw_errors)
+    screen_distance = _required_screen_distance("design_lens", screen_distance)
     problem, start_, finish = lens_problem(
         width=width,
         height=height,

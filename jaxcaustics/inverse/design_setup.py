@@ -78,7 +78,8 @@ class Setup:
         a `LensScene` or a `MirrorScene`."""
         surface = HeightField(heights, self.aperture, self.boundary)
         outline = self.problem.outline.lens_outline
-        if self.is_mirror:
+        element = self.problem.element
+        if isinstance(element, Mirror):  # `is_mirror`
             return MirrorScene(surface, self.light, self.receiver, self.pose, outline=outline)
         return LensScene(
             surface,
@@ -86,7 +87,7 @@ class Setup:
             self.receiver,
             self.thickness,
             self.screen_distance,
-            ior=self.problem.element.ior,
+            ior=element.ior,
             outline=outline,
             screen_pose=self.pose,
         )

@@ -130,7 +130,8 @@ def _round_solid(surface: HeightField, thickness: float, samples, outline):
     rows, cols = _check_samples(samples, surface, 2)
     rings = max(1, (max(rows, cols) - 1) // 2)
     x0, x1, y0, y1 = (float(v) for v in np.asarray(surface.extent))
-    radius, corners = None, ()
+    radius = None
+    corners: Sequence[float] = ()
     if outline != "ellipse":  # a polygon: its radius, its corners on every ring
         radius = lambda theta: outline_radius(outline, theta)  # noqa: E731
         corners = [np.arctan2(v, u) for u, v in outline]
@@ -261,7 +262,9 @@ def export_lens(
     return paths
 
 
-def _write_export(d, name, fmts, mesh, z, width, height, surface, scene_or_surface, report):
+def _write_export(
+    d, name, fmts, mesh, z, width, height, surface, scene_or_surface, report
+) -> dict[str, Path]:
     """`export_lens`'s files written into `d`: ``{kind: path}``."""
     paths: dict[str, Path] = {}
     for fmt in fmts:

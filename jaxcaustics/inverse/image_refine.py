@@ -1,12 +1,6 @@
-"""The image refinement that finishes a design: a few L-BFGS steps on the image misfit
-(`ImageRefinement`).
-
-Where the target has dark regions the transport map jumps across them and the fitted
-surface (smooth on its grid) spreads a little light over the gaps; a few L-BFGS steps on
-the image misfit (caustic triangles, plus a penalty on the flux on dark pixels) finish
-the design. The irradiance residual of the Poisson levels, run after the fit instead,
-raised the error on a silhouette (relative L2 0.18 to 0.26, measured), since its
-logarithm needs light everywhere.
+"""The image refinement that finishes a design (`ImageRefinement`): a few L-BFGS steps on
+the image misfit (caustic triangles, plus a penalty on the flux on dark pixels), for
+targets with dark regions. See the design notes (``docs/design-notes.md``).
 """
 
 from __future__ import annotations
@@ -21,6 +15,7 @@ import optimistix as optx
 
 from .._checks import check_int
 from ..methods.triangles.method import caustic_triangles
+from ..scene.mirror import MirrorScene
 from ..scene.scene import LensScene
 from .design_setup import Setup
 from .driver import iterate
@@ -40,7 +35,7 @@ class _ImageRefine(eqx.Module):
     image of the heights ``h = C^-1/2 u`` (`C` the landing fit's DCT symbol: ``u`` is in
     pixels of displacement, so that L-BFGS sees a well-scaled problem)."""
 
-    scene: LensScene
+    scene: LensScene | MirrorScene
     goal: jax.Array  # (rows, cols) target at unit mean (as seen under the source)
     dark: jax.Array  # (rows, cols) bool: the target below 5% of its mean
     root_symbol: jax.Array  # (hrows, hcols)

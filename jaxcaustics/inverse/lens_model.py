@@ -267,7 +267,7 @@ def residual_count(problem: LensModel) -> int:
     return (rows - 1) * (cols - 1) + 2 * (rows + cols) + int(problem.scene.surface.heights.size)
 
 
-def aperture_coverage(outline: str, aperture, shape, sub: int = 8) -> np.ndarray:
+def aperture_coverage(outline: str | tuple, aperture, shape, sub: int = 8) -> np.ndarray:
     """The fraction of each cell of a ``shape`` grid over `aperture` that lies inside
     the blank's `outline` (``sub`` x ``sub`` points a cell), ``(rows, cols)``."""
     rows, cols = shape

@@ -56,7 +56,11 @@ def _lens(scene_or_surface, thickness) -> tuple[HeightField, float]:
             raise ValueError(
                 "`thickness` (metres: the blank's) is required with a HeightField or a MirrorScene"
             )
-        surface = getattr(scene_or_surface, "surface", scene_or_surface)
+        surface = (
+            scene_or_surface.surface
+            if isinstance(scene_or_surface, MirrorScene)
+            else scene_or_surface
+        )
         t = _check_number(thickness, "thickness", low=0.0, low_inclusive=False)
     else:
         raise ValueError(
@@ -149,7 +153,7 @@ def lens_height_map(scene_or_surface, thickness=None, *, samples=None) -> np.nda
     return _top_mm(surface, t, samples)[0]
 
 
-def _outline(scene_or_surface) -> str:
+def _outline(scene_or_surface) -> str | tuple:
     if isinstance(scene_or_surface, (LensScene, MirrorScene)):
         return scene_or_surface.outline
     return "rectangle"

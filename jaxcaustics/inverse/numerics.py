@@ -46,7 +46,7 @@ def neumann_poisson(rhs: jax.Array, dx, dy) -> jax.Array:
     return jax.scipy.fft.idctn((coef / lam).at[0, 0].set(0.0), type=2, norm="ortho")
 
 
-def weighted_laplacian(u: Array, boundary: str, wx: Array, wy: Array) -> Array:
+def weighted_laplacian(u: Array, boundary: str, wx: Array | float, wy: Array | float) -> Array:
     """The five-point Laplacian ``wx (east + west - 2u) + wy (north + south - 2u)``,
     periodic or with edge samples repeated (zero flux) for any other `boundary`."""
     if boundary == "periodic":

@@ -1,17 +1,7 @@
 """The caustic a design predicts (`predict_caustic`), and the target corrected by it
-(`corrected_goal`) for another transport start under leaning light.
-
-Under leaning light, or off a mirror, the landing point also moves with the surface's
-height (the hit lies off the rest-plane point it was aimed through, and higher or lower),
-not only with its slope: the map the element can make is then not a gradient, as the
-optimal transport's is, and the landing fit is left with a misfit that grows with relief
-times the lean (measured on the camera off a mirror, 30 degrees, 1 m: 0.16 pixels RMS at
-0.75 mm of relief, 0.039 at 0.18 mm; vertical light 0.01). The image it makes is then
-off where the target has edges. Correcting the target by the ratio of the target to the
-predicted caustic (both blurred by a Gaussian of 0.7 pixels, the ratio clipped to
-``[0.5, 2]``) and solving again from the heights reached, as caustic designers do,
-puts the light back (measured, that mirror judged by the reference: relative L2 0.047,
-then 0.038 and 0.035 after one and two corrections).
+(`corrected_goal`) for another transport start under leaning light or off a mirror, where
+the landing point also moves with the surface's height. See the design notes
+(``docs/design-notes.md``).
 """
 
 from __future__ import annotations
@@ -20,6 +10,8 @@ import numpy as np
 from scipy.ndimage import gaussian_filter
 
 from ..methods.triangles.method import trace_photons, triangle_window, triangles_image
+from ..scene.mirror import MirrorScene
+from ..scene.scene import LensScene
 from .design_setup import Setup
 from .lens_setup import predict_photons_default
 
@@ -28,7 +20,7 @@ _BLUR = 0.7  # pixels: the correction's Gaussian
 _CLIP = (0.5, 2.0)  # the correction's ratio, per round
 
 
-def predict_caustic(setup: Setup, h) -> tuple[np.ndarray, float, int, object]:
+def predict_caustic(setup: Setup, h) -> tuple[np.ndarray, float, int, LensScene | MirrorScene]:
     """The caustic of `setup`'s element with heights `h` (caustic triangles at the
     design's `predict_photons`): ``(image (rows, cols), flux fraction missed, window,
     scene)``."""

@@ -82,6 +82,11 @@ class Mirror(eqx.Module):
 Element = Lens | Mirror
 
 
+def _centred_extent(width: float, height: float) -> np.ndarray:
+    """``(x_min, x_max, y_min, y_max)`` of a blank of `width` by `height`, centred."""
+    return np.array([-width / 2, width / 2, -height / 2, height / 2])
+
+
 class Rectangle(eqx.Module):
     """A rectangular blank, `width` along x by `height` along y (metres), centred."""
 
@@ -96,7 +101,7 @@ class Rectangle(eqx.Module):
     @property
     def extent(self) -> np.ndarray:
         """``(x_min, x_max, y_min, y_max)`` of the blank."""
-        return np.array([-self.width / 2, self.width / 2, -self.height / 2, self.height / 2])
+        return _centred_extent(self.width, self.height)
 
 
 class Ellipse(eqx.Module):
@@ -111,7 +116,10 @@ class Ellipse(eqx.Module):
     def __init__(self, width, height):
         self.width, self.height = _length(width, "width"), _length(height, "height")
 
-    extent = Rectangle.extent
+    @property
+    def extent(self) -> np.ndarray:
+        """``(x_min, x_max, y_min, y_max)`` of the blank."""
+        return _centred_extent(self.width, self.height)
 
 
 def Circle(diameter) -> Ellipse:  # noqa: N802 (reads as the class it builds)
@@ -171,7 +179,10 @@ class Polygon(eqx.Module):
         a, b = 0.5 * self.width, 0.5 * self.height
         return check_outline([(x / a, y / b) for x, y in self.vertices], "vertices")
 
-    extent = Rectangle.extent
+    @property
+    def extent(self) -> np.ndarray:
+        """``(x_min, x_max, y_min, y_max)`` of the blank."""
+        return _centred_extent(self.width, self.height)
 
 
 Outline = Rectangle | Ellipse | Polygon
@@ -369,6 +380,7 @@ def problem_from_dict(data) -> DesignProblem:
             built_outline = Polygon(outline["vertices"])
         else:
             built_outline = shapes[outline["kind"]](outline["width"], outline["height"])
+        built_light: DirectionalLight | PointLight
         if light.get("kind") == "directional":
             built_light = DirectionalLight(np.asarray(light["direction"], float))
         elif light.get("kind") == "sun":

@@ -278,7 +278,7 @@ def recover_surface(
       result carries the `optimistix.RESULTS` codes instead.
     - `samples_x`, `channels_y`: the two-pass window ``(N, M)``; ``"auto"`` (see the
       module); an int N with `channels_y` None uses ``M = N - 1``.
-    - `hit_iterations`, `supersample`: the two-pass knobs (see `two_pass`).
+    - `hit_iterations`, `supersample`: the two-pass knobs (see `TwoPass`).
     - `blur`: the camera's blur, a Gaussian PSF of this standard deviation in target
       pixels (0: none). The transport start works on the target deconvolved by
       Richardson-Lucy (`deconvolve`); the image-space solve blurs its rendered caustic
@@ -433,7 +433,7 @@ def recover_surface(
         warm = None
         if initial is not None:  # a warm start: the irradiance fit alone, from `initial`
             warm = np.asarray(resample_heights(init_arr, ext, gray.shape, boundary), float)
-        geometry = dict(
+        geometry: dict[str, Any] = dict(
             extent=ext,
             rest_depth=depth,
             direction=np.asarray(light.direction, float),
@@ -482,6 +482,7 @@ def recover_surface(
 
     levels: list[RecoveryLevel] = []
     for index, level_shape in enumerate(level_shapes if solver is not None else ()):
+        assert solver is not None  # (for mypy: levels are solved only with a solver)
         t0 = time.perf_counter()
         u = resample_heights(u, ext, level_shape, boundary)
         hx = (ext[1] - ext[0]) / level_shape[1]
@@ -494,6 +495,7 @@ def recover_surface(
                 max(m + 2 * WINDOW_MARGIN, MIN_WINDOW[1]),
             )
         else:
+            assert channels_y is not None  # (for mypy: set with `samples_x` above)
             window = (samples_x, channels_y)
         problem = _Problem(
             target=target_j,
@@ -525,9 +527,10 @@ def recover_surface(
             history=[],
         )
         if throw and run.result != optx.RESULTS.successful:
+            # (`optx.RESULTS[...]`: Equinox's enumeration metaclass, unknown to mypy)
             raise RuntimeError(
                 f"recover_surface: level {index} ({level_shape[0]} x {level_shape[1]}) "
-                f"stopped after {run.steps} steps: {optx.RESULTS[run.result]}"
+                f"stopped after {run.steps} steps: {optx.RESULTS[run.result]}"  # type: ignore[misc]
             )
         u, steps, result = run.y, run.steps, run.result
         loss = float(_loss(problem, u))

@@ -97,4 +97,5 @@ class RecoveryResult:
     @property
     def messages(self) -> tuple[str, ...]:
         """Human-readable result per level (empty string: successful)."""
-        return tuple(optx.RESULTS[r] for r in self.results)
+        # the class is indexed through Equinox's enumeration metaclass, unknown to mypy
+        return tuple(optx.RESULTS[r] for r in self.results)  # type: ignore[misc]

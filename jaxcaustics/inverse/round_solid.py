@@ -8,11 +8,7 @@ The top is a polar mesh: a centre vertex and `rings` concentric copies of the ou
 between rings) and a polygon's corners; neighbouring rings are stitched by walking both
 in angle. The rim is closed by a vertical wall down to the bottom face ``z = 0``, a fan
 of triangles from the centre. The frame is `lens_solid`'s: the origin at the aperture's
-corner ``(x_min, y_min)``.
-
-Written by hand: trimesh builds such solids through shapely and a triangulator
-(`trimesh.creation.extrude_polygon`), which are not dependencies here, and its extrusion
-has a flat top; a polar grid needs neither.
+corner ``(x_min, y_min)``. See the design notes (``docs/design-notes.md``).
 """
 
 from __future__ import annotations

@@ -1,19 +1,9 @@
 """Water surfaces from a video of their caustic: `recover_sequence`.
 
-The frames are recovered in order with `recover_surface`. The first has the cold
-transport start (optimal transport, the landing fit, the irradiance fit); every later
-frame is warm-started from the one before: the irradiance fit alone, from the previous
-heights, which a moving sea changes little between frames. A warm start whose
-irradiance misfit stays above `START_MISFIT` (the sea moved too far for the fit to
-follow) is done again cold. The two-pass window of the frames' images is fixed after
-the first frame (its automatic window plus a margin), so that it compiles once.
-
-Measured on frames of `wave_heights` (128^2, traced by the NumPy reference): see
-`benchmarks/bench_recover.py`.
-
-The run is a sequence of rounds (`jaxcaustics.inverse.checkpoint.run_rounds`), one a
-frame: a progress bar, a checkpoint after every frame when asked (``resume=True``
-continues after the last frame saved), and Ctrl-C keeps the frames done.
+The frames are recovered in order with `recover_surface`, each warm-started from the one
+before (and done again cold where the warm start cannot follow), as checkpointed rounds,
+one a frame: a progress bar, ``resume=True``, and Ctrl-C keeps the frames done.
+See the design notes (``docs/design-notes.md``).
 """
 
 from __future__ import annotations
@@ -92,7 +82,7 @@ def load_frames(frames, ior) -> list[np.ndarray]:
         )
     if len(frames) == 0:
         raise ValueError("`frames` is empty")
-    loaded = []
+    loaded: list[np.ndarray] = []
     for k, frame in enumerate(frames):
         try:
             image = load_target(frame, ior)
@@ -243,7 +233,7 @@ def recover_sequence(
         label="frames",
     )
     if not window and int(state["window"][0]) > 0:  # resumed after the last frame
-        window.append(tuple(int(v) for v in state["window"]))
+        window.append((int(state["window"][0]), int(state["window"][1])))
     return SequenceResult(
         heights=np.asarray(state["heights"], float),
         images=np.asarray(state["images"], float),

@@ -15,7 +15,7 @@ inverse problems report it.
 
 from __future__ import annotations
 
-from typing import Literal, get_args
+from typing import Literal, cast, get_args
 
 import jax
 import jax.numpy as jnp
@@ -24,7 +24,7 @@ import optax
 import optimistix as optx
 
 SolverName = Literal["levenberg_marquardt", "gauss_newton", "bfgs", "lbfgs", "adam"]
-SOLVER_NAMES: tuple[str, ...] = get_args(SolverName)
+SOLVER_NAMES: tuple[SolverName, ...] = get_args(SolverName)
 
 SolverLike = SolverName | optx.AbstractLeastSquaresSolver | optx.AbstractMinimiser
 
@@ -43,7 +43,7 @@ def check_solver(solver, name: str = "solver") -> SolverLike:
             f"`{name}` must be one of {SOLVER_NAMES} or an Optimistix least-squares "
             f"solver or minimiser, got {solver!r}"
         )
-    return solver
+    return cast(SolverName, solver)  # one of the names, checked above
 
 
 def solver_name(solver: SolverLike) -> str:
@@ -86,4 +86,5 @@ def is_minimiser(solver) -> bool:
 
 def half_squares(residual) -> jax.Array:
     """The loss ``0.5 * sum(r^2)`` over the arrays of a residual pytree."""
-    return 0.5 * sum(jnp.sum(leaf * leaf) for leaf in jax.tree_util.tree_leaves(residual))
+    total = sum(jnp.sum(leaf * leaf) for leaf in jax.tree_util.tree_leaves(residual))
+    return 0.5 * cast(jax.Array, total)  # a residual has leaves: never `sum`'s start, 0

@@ -1,23 +1,6 @@
-"""What an extended source does to a design's caustic: its image on the screen (the
-blur kernel), the target pre-compensated for it, and what it allows.
-
-Each direction of a disc source (`SunLight`) casts the element's caustic shifted on the
-screen; over the disc the caustic is the collimated one convolved with the source's
-image on the screen (`source_kernel`). The kernel is the flat element's: the directions
-of the disc are traced through the flat blank (glass or mirror) to the screen (posed or
-the ground), where they land on an ellipse or a disc (for the quickstart lens at 500 mm:
-a disc 3.0 pixels in radius; 3.1 by the kernel's second moment, bilinear splatting
-included; 1 s for its 4096 directions). The element's own focusing reshapes the disc,
-which the convolution leaves out: against the reference sampling the Sun on a lens with
-two bumps (48^2 pixels, 1.1-pixel blur) it is 0.005 off (relative L2) where the caustic
-peaks at 1.24 times the mean, 0.021 at 2.45 and 0.054 at 5.8 (`tests/test_sources.py`);
-`jaxcaustics.render` and the reference sample the source instead.
-
-The design aims its transport at the target deconvolved by the kernel (Richardson-Lucy,
-what the literature uses for this; written here with the boundary correction that
-`scikit-image`'s lacks: `deconvolve`), so the caustic, blurred by the source, comes out
-near the target; the image refinement then fits the blurred caustic to the target
-itself.
+"""What an extended source does to a design's caustic: its image on the screen (the blur
+kernel, `source_kernel`), the target pre-compensated for it (`deconvolve`), and what it
+allows. See the design notes (``docs/design-notes.md``).
 """
 
 from __future__ import annotations

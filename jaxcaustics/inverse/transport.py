@@ -1,37 +1,9 @@
 """Quadratic-cost optimal transport between two densities on one pixel grid.
 
-`transport_map` solves Monge's problem for the cost ``|x - y|^2 / 2`` between a source
-density ``mu`` and a target density ``nu`` given on the same ``(rows, cols)`` grid of
-square cells: the Brenier map ``T = grad(u)`` (``u`` convex) with ``T#mu = nu``. It is the
-core of lens design (`design_lens`: where each photon of the aperture must land) and of
-water recovery.
-
-**Algorithm: the back-and-forth method** (Jacobs & Léger, "A fast approach to optimal
-transport: the back-and-forth method", Numer. Math. 146, 2020). The dual problem is
-solved by gradient ascent in the ``H^1`` metric (one DCT Poisson solve per step)
-alternately on the two convex potentials ``phi`` (on the target grid, ``grad(phi)``
-maps the target to the source) and ``psi = phi*`` (on the source grid, the map itself),
-each ascent followed by Legendre transforms, so that the pair stays convex conjugate.
-Step sizes follow the paper's Armijo-Goldstein rule. The push-forward densities each
-step needs are gathered, not splatted: ``(grad psi)#mu (y) = mu(grad phi(y)) det
-D^2 phi(y)`` with finite differences of the conjugate potential evaluated one cell past
-the grid (the Legendre transform extends it exactly), so the step is one smooth,
-vectorised JAX program with no scatter, and it is jit-compiled once per grid shape.
-
-Why this method (from reading; the grid measurements are below): it works on grids
-(the target is an image), it needs no positive floor (zero density is an ordinary
-value of ``nu``: the potential is affine over dark regions and the map jumps across
-them), the cost per step is that of a few Legendre transforms and FFTs, and it
-converges in tens of steps from the identity. Entropic (Sinkhorn) transport, e.g.
-ott-jax, blurs the map by its regularisation and needs many iterations at small
-epsilon on 128^2 x 128^2 couplings; semi-discrete Newton (power diagrams) has no
-vectorised JAX implementation. Legendre transforms here are brute force, separable
-(two passes of ``O(n^3)`` for an ``n x n`` grid), batched over rows to bound memory.
-Measured on 2 CPU cores (float32): a 512^2 silhouette target takes 59 iterations in
-about 11 s, compilation included (0.19 s an iteration, four Legendre transforms each),
-with the push-forward misfit stalling at 0.085 (relative L1: sharp edges resolved to a
-pixel); a 128^2 one 2 to 4 s. Entropic transport was not measured here: the reasons
-against it above are from its method, not a run.
+`transport_map` solves Monge's problem for the cost ``|x - y|^2 / 2`` by the
+back-and-forth method (Jacobs & Léger, Numer. Math. 146, 2020): the Brenier map from a
+source density to a target density on the same grid. It is the core of lens design and
+of water recovery. See the design notes (``docs/design-notes.md``).
 
 Coordinates: cell ``(i, j)``'s centre is ``((j + 0.5) h, (i + 0.5) h)`` with
 ``h = 1 / max(rows, cols)``: the grid covers ``[0, cols h] x [0, rows h]`` (with

@@ -1,42 +1,15 @@
-"""The transport start of lens design: where every photon must land, then heights that
-send it there (`TransportStart`).
-
-The irradiance residual of the Poisson levels needs light everywhere (``log E``) and a
-start close to the solution; high-contrast targets (black backgrounds, thin lettering,
-bright dots) meet neither. So the design first solves where every photon must land: the
-quadratic-cost optimal transport (`jaxcaustics.inverse.transport.transport_map`, the
-back-and-forth method) from the flux the aperture sends (uniform for collimated light,
-the point light's falloff otherwise) to the target on the screen, both on the heights
-grid (four times the target's resolution up to 512 samples a side); zeros need no
-floor. The map's corners are the landing points of the photon grid's vertices. The
-heights are then fitted to those landing points with the exact optics
-(`LensModel.vertex_rays`: Snell at both faces, the thickness, point or oblique light) by
-Optimistix's fixed-point iteration of a preconditioned Gauss-Newton step: the exact
-gradient ``J^T r`` (a VJP), divided in the DCT basis by the weak-lens normal operator
-``(D / pixel)^2 G^T G`` (``G``: the gradient of the heights at the photon vertices). In
-the weak-lens limit the first step is the Brenier potential itself (heights = (potential
-- |x|^2 / 2) / D); the next ones correct for the real optics.
-
-The lens's surface keeps its edge slope out to the rim (`HeightField`'s "extrapolate",
-`LENS_BOUNDARY`): a clamped one levels off over the outermost half sample and sends that
-light back towards the screen's edge (measured on twelve dots: the outermost ring of
-cells put all its light on black; 3.07% of the light on black in all, 2.65% with the rim
-extrapolated). Under point or oblique light, rays that lean outwards at an edge lying
-below the top's rest plane would meet the surface beyond the aperture (where no heights
-steer them: their light lined the screen's edge); there the edge is bevelled up to the
-rest plane, the transport is solved again without the band of the aperture whose light
-the bevel throws away, and the fit continues from its heights (`_edge_bevel`; measured
-on a silhouette under a point light: relative L2 0.133 to 0.055, at the cost of a second
-transport). Where the target has dark regions the map jumps across them and the fitted
-surface (smooth on its grid) spreads a little light over the gaps: the image refinement
-(`jaxcaustics.inverse.image_refine`) finishes those.
+"""The transport start of lens design (`TransportStart`): the optimal transport from the
+aperture's flux to the target says where every photon must land, and the heights are
+fitted to those landing points with the exact optics (Optimistix's fixed-point iteration
+of a Gauss-Newton step preconditioned in the DCT basis). See the design notes
+(``docs/design-notes.md``).
 """
 
 from __future__ import annotations
 
 import time
 from collections.abc import Sequence
-from typing import ClassVar
+from typing import Any, ClassVar
 
 import equinox as eqx
 import jax
@@ -484,7 +457,7 @@ class TransportStart(eqx.Module):
         # converged: a step moves no vertex by more than 1/100 of a pixel (weak-lens
         # estimate)
         atol = 0.01 * min(dx / abs(gain[0]), dy / abs(gain[1]))
-        solver = optx.FixedPointIteration(rtol=0.0, atol=atol)
+        solver: optx.FixedPointIteration[Any, Any] = optx.FixedPointIteration(rtol=0.0, atol=atol)
         if setup.initial is not None:
             initial = np.asarray(setup.initial, float)
             h0 = jnp.asarray(resample_corners(initial, shape, setup.boundary), dtype)

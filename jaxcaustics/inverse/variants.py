@@ -16,7 +16,7 @@ import jax.numpy as jnp
 import numpy as np
 import optimistix as optx
 
-from .._checks import check_bool, check_number, renamed_keyword
+from .._checks import check_bool, check_number
 from ..devices import check_per_device, map_sharded, resolve_devices
 from .design import LensDesign, _finish, design_lens, lens_problem
 from .driver import iterate_traced
@@ -44,8 +44,6 @@ def design_lens_variants(
     devices: Sequence[jax.Device] | int | None = None,
     per_device: Literal["map", "vmap"] | None = None,
     throw: bool = True,
-    throws: Sequence[float] | None = None,
-    throw_errors: bool | None = None,
     **design_kwargs,
 ) -> list[LensDesign]:
     """Design one lens per screen distance of `screen_distances` (the same target, blank and light),
@@ -67,9 +65,7 @@ def design_lens_variants(
     - `devices`: ``None`` (all of `jax.devices()`), an int ``n`` (the first ``n``) or a
       sequence of devices.
     - `per_device`: ``"map"`` or ``"vmap"``; see `map_sharded`.
-    - `throw`: raise if a variant's solver fails at some level (`throws` and
-      `throw_errors`, the names before the rename, still work with a
-      `DeprecationWarning`).
+    - `throw`: raise if a variant's solver fails at some level.
     - `**design_kwargs`: the keyword arguments of `design_lens` (``width``, ``height``,
       ``thickness`` required), except ``screen_distance`` and ``callback`` (no per-step calls from
       inside the sharded loop).
@@ -83,11 +79,6 @@ def design_lens_variants(
 
     t_start = time.perf_counter()
     where = "design_lens_variants"
-    screen_distances = renamed_keyword(
-        where, "throws", "screen_distances", throws, screen_distances
-    )
-    if throw_errors is not None:
-        throw = renamed_keyword(where, "throw_errors", "throw", throw_errors, None)
     if screen_distances is None:
         raise ValueError(f"{where}: `screen_distances` is required (metres, one design each)")
     for name in ("screen_distance", "callback"):
@@ -121,7 +112,7 @@ def design_lens_variants(
         k: p.default
         for k, p in inspect.signature(design_lens).parameters.items()
         if p.default is not inspect.Parameter.empty
-        and k not in ("throw", "throw_errors", "callback", "screen_distance")
+        and k not in ("throw", "callback", "screen_distance")
     }
     spec = {**defaults, "start": "poisson", **design_kwargs}
     if spec["start"] != "poisson":
@@ -164,12 +155,12 @@ def design_lens_variants(
             solve, None, batch, devices=devices, per_device=per_device
         )
         seconds = time.perf_counter() - t0
-        for i, (_, problem) in enumerate(items):
+        for i, (_, model) in enumerate(items):
             n_steps = int(steps[i])
             results[i] = jax.tree.map(lambda x, i=i: jnp.asarray(x[i]), result)
             histories[i].extend(float(v) for v in losses[i, :n_steps])
             try:
-                heights[i] = level_heights(problem, u[i], k, shape, results[i], throw)
+                heights[i] = level_heights(model, u[i], k, shape, results[i], throw)
             except RuntimeError as err:
                 raise RuntimeError(f"screen_distances[{i}] = {screen_distances[i]}: {err}") from err
             reports[i].append(

@@ -53,10 +53,21 @@ def _image(value, name: str, shape=None) -> np.ndarray:
 
 
 def relative_l2(image, target, mask=None) -> float:
-    """``|a / mean(a) - b / mean(b)|_2 / |b / mean(b)|_2`` over `mask` (both images scaled
-    to unit mean: the error does not depend on overall brightness). Both finite,
-    non-negative, of one shape; `mask` boolean (or 0/1) of that shape; the target not
-    all zero (inside `mask`)."""
+    """The relative L2 error of `image` against `target`,
+    ``|a / mean(a) - b / mean(b)|_2 / |b / mean(b)|_2`` over `mask` (both images scaled
+    to unit mean: the error does not depend on overall brightness).
+
+    **Arguments:**
+
+    - `image`: the image ``a``, finite and non-negative, of any shape (``(rows, cols)``
+      or ``(rows, cols, channels)``); an all-zero image is left unscaled (error 1).
+    - `target`: the image ``b``, finite and non-negative, of the shape of `image`; not
+      all zero (inside `mask`).
+    - `mask`: ``None`` (every pixel, the default) or a boolean (or 0/1) array of that
+      shape: the pixels compared.
+
+    **Returns:** the error, a Python float (0 for a perfect match).
+    """
     b = _image(target, "target")
     a = _image(image, "image", b.shape)
     if mask is not None:

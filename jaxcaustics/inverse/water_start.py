@@ -1,40 +1,8 @@
 """The transport start of `recover_surface`: a water surface from a caustic without folds.
 
-A caustic without folds is a transport map: each ray through the rest plane lands on
-the ground at one point, and the map pushes the light's uniform flux onto the caustic.
-Three stages, each on the target's pixel grid, give the heights:
-
-1. **Transport** (`jaxcaustics.inverse.transport.transport_map`): the quadratic-cost optimal
-   transport from uniform flux to the target. In the paraxial limit the landing map of
-   the rest-plane point ``a`` is ``a + s + D grad H``, ``s`` the ground shift of flat
-   water under oblique light and ``D = rest_depth (1 - 1/n)``: a gradient, so the
-   transport map is that map (``s`` aside). A periodic target is transported with a
-   band of ``PERIODIC_PAD`` of its own pixels wrapped round it (the transport works on
-   a box: the band keeps the box's edges away from the pixels used). The displacement
-   of rest-plane point ``a`` is the transport's displacement read at ``a + s``.
-2. **Landing fit**: heights whose exact rays (meeting the bicubic surface above the
-   cell corners, Snell, the ground: `RayMap`) land where the transport sends them, in
-   receiver pixels, by Gauss-Newton.
-3. **Irradiance fit**: heights whose exact ray map gives the target itself: per cell
-   ``log E(centre of the landed quadrilateral) + log(landed area / pixel area) -
-   log(flux) = 0`` (light conserved in every cell, no folds), by Gauss-Newton. This
-   corrects what the paraxial transport gets wrong (refraction's nonlinearity, the
-   anisotropy of oblique light, the surface facing the light) and the transport's
-   own floor (its push-forward misfit is a few percent).
-
-Measured on 128^2 caustics of a smooth periodic sea traced by the NumPy reference
-(`benchmarks/bench_recover.py`): height error 0.33%, 0.41% and 0.27% under light 0, 30
-and 80 degrees from vertical, float32.
-
-**Gauss-Newton** (`gauss_newton`; not Optimistix's: in a first version of these fits,
-in float32, its Levenberg-Marquardt ended after one step at 30 degrees and its CG
-solve returned NaN once the residual was small): each step solves the least-squares
-problem by CGLS (JVPs and VJPs of the residual) in a preconditioned variable ``u = S h``,
-``S`` the square root of the flat-water normal operator ``J^T J`` in the Fourier basis
-(measured from the response to one sample, so that oblique light, anisotropy and the
-surface's own interpolation are in it); a backtracking line search accepts only steps
-that lower the misfit. The divisions of the conjugate gradients are guarded, so that a
-converged (zero) residual gives a zero step, not NaN, in float32.
+Three stages on the target's pixel grid: the optimal transport from uniform flux to the
+target, a landing fit and an irradiance fit of the exact rays (`RayMap`), the fits by a
+preconditioned Gauss-Newton (`gauss_newton`). See the design notes (``docs/design-notes.md``).
 """
 
 from __future__ import annotations
@@ -65,8 +33,10 @@ def flat_shift(direction, ior: float, rest_depth: float) -> np.ndarray:
     """``s``: where flat water lands the ray through a rest-plane point, minus that
     point, ``(2,)`` metres."""
     d = np.asarray(direction, float)
-    t, _ = refract(jnp.asarray(d / np.linalg.norm(d)), jnp.array([0.0, 0.0, 1.0]), 1.0 / ior)
-    t = np.asarray(t, float)
+    refracted, _ = refract(
+        jnp.asarray(d / np.linalg.norm(d)), jnp.array([0.0, 0.0, 1.0]), 1.0 / ior
+    )
+    t = np.asarray(refracted, float)
     return rest_depth * t[:2] / -t[2]
 
 
@@ -98,6 +68,9 @@ def at_corners(h: jax.Array, extent, boundary: str):
     x0, x1, y0, y1 = extent
     w, dw, _ = catmull_rom(jnp.asarray(0.5, h.dtype))
     p = pad_heights(h, boundary)  # taps of corner (i, j): p[i + 1 + a, j + 1 + b]
+    value: jax.Array | float
+    hx: jax.Array | float
+    hy: jax.Array | float
     value = hx = hy = 0.0
     for a in range(4):
         taps = [p[1 + a : 2 + a + rows, 1 + b : 2 + b + cols] for b in range(4)]
@@ -380,6 +353,7 @@ def transport_start(
     jj, ii = np.meshgrid(np.arange(cols + 1), np.arange(rows + 1))
     rays = ray_map(extent, (rows, cols), direction, rest_depth, ior, boundary)
     stages: list[dict] = []
+    fits: tuple[tuple[str, tuple[float, float], int, int], ...]
     fits = (("irradiance fit", (0.0, 1.0), 2, rows * cols),)
     if initial is None:
         t0 = time.perf_counter()

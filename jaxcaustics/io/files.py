@@ -1,9 +1,8 @@
 """Files written whole or not at all: every writer in the package writes to a temporary
 name beside its file and renames it into place (`os.replace`, atomic within a folder),
 so a failure (a full disk, an interrupt, a bad array) leaves the earlier file, or none,
-never half of one. The standard library has the pieces (`tempfile`, `os.replace`) but
-not the pattern; the maintained packages that wrap it (``atomicwrites``, archived in
-2022; ``safer``) would add a dependency for ten lines."""
+never half of one. See the design notes (``docs/design-notes.md``).
+"""
 
 from __future__ import annotations
 

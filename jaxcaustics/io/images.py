@@ -11,10 +11,9 @@ library's convention ``[row, col] = [y, x]``, with row 0 the *first* row of the 
   ``[vmin, vmax]`` to ``0..65535`` (e.g. a height map for a CNC or a 3-D printer).
 - `read_image`: PNG / JPEG / TIFF as floats in ``[0, 1]``, or EXR as linear floats.
 
-16-bit colour PNGs are written, and every 16-bit PNG read, with imagecodecs (libpng,
-compiled: a megapixel decodes in 10 ms), which Pillow (under scikit-image and imageio)
-truncates to 8 bits or cannot write; every other format goes through Pillow, tifffile
-and OpenEXR. What a file holds is read from its header first (`probe.py`).
+16-bit PNGs go through imagecodecs, every other format through Pillow, tifffile and
+OpenEXR; what a file holds is read from its header first (`probe.py`). See the design
+notes (``docs/design-notes.md``).
 
 Bad input raises `ValueError` naming the argument; a missing file raises
 `FileNotFoundError` and an unreadable or corrupt file a `ValueError`, both with the path.
@@ -149,28 +148,23 @@ def _default_channel_names(arr: np.ndarray) -> list[str]:
 def write_exr(path, image, *, channel_names: Sequence[str] | None = None) -> None:
     """Writes a linear float32 OpenEXR file (ZIP compression, lossless).
 
-    Parameters
-    ----------
-    path : str or os.PathLike
-        Output file; must end in ``.exr``. Parent directories are created.
-    image : array_like, shape (rows, cols) or (rows, cols, C)
-        Linear values (any unit; e.g. relative irradiance or metres), indexed
-        ``[y, x]``, row 0 at the top of the picture. Stored as float32: values must be
-        finite and within the float32 range.
-    channel_names : sequence of str, optional
-        One distinct name per channel. Defaults: ``"Y"`` for a 2-D image; ``"R", "G",
-        "B"`` for 3 channels; ``"C0" .. "C{C-1}"`` otherwise.
-
-    Raises
-    ------
-    ValueError
-        For a bad `path` extension, an empty, non-numeric, non-finite or wrongly shaped
-        `image`, or bad `channel_names`.
-
-    Notes
-    -----
     The channel order and the array's dimensionality are stored in a header attribute,
     so `read_exr` returns exactly the array written (as float32).
+
+    **Arguments:**
+
+    - `path`: output file, a `str` or `os.PathLike`; must end in ``.exr``. Parent
+      directories are created.
+    - `image`: array-like of shape ``(rows, cols)`` or ``(rows, cols, C)``: linear values
+      (any unit; e.g. relative irradiance or metres), indexed ``[y, x]``, row 0 at the top
+      of the picture. Stored as float32: values must be finite and within the float32
+      range.
+    - `channel_names`: optional sequence of str, one distinct name per channel. Defaults:
+      ``"Y"`` for a 2-D image; ``"R", "G", "B"`` for 3 channels; ``"C0" .. "C{C-1}"``
+      otherwise.
+
+    **Raises:** `ValueError` for a bad `path` extension, an empty, non-numeric, non-finite
+    or wrongly shaped `image`, or bad `channel_names`.
     """
     import OpenEXR
 
@@ -232,25 +226,18 @@ def _exr_channel_order(names: list[str], header: dict) -> tuple[list[str], int]:
 def read_exr(path) -> np.ndarray:
     """Reads an OpenEXR file (first part) as float32.
 
-    Parameters
-    ----------
-    path : str or os.PathLike
-        An ``.exr`` file.
+    **Arguments:**
 
-    Returns
-    -------
-    numpy.ndarray, float32, shape (rows, cols) or (rows, cols, C)
-        A single-channel file (e.g. ``"Y"``) gives a 2-D array. A file written by
-        `write_exr` comes back with the shape and channel order it was written with.
-        For other files: ``R, G, B`` (and ``A``) channels in that order, otherwise the
-        channels sorted by name. Half and uint channels are converted to float32.
+    - `path`: an ``.exr`` file, a `str` or `os.PathLike`.
 
-    Raises
-    ------
-    FileNotFoundError
-        If `path` does not exist.
-    ValueError
-        If `path` does not end in ``.exr`` or is not a readable OpenEXR image.
+    **Returns:** a float32 `numpy.ndarray` of shape ``(rows, cols)`` or
+    ``(rows, cols, C)``. A single-channel file (e.g. ``"Y"``) gives a 2-D array. A file
+    written by `write_exr` comes back with the shape and channel order it was written
+    with. For other files: ``R, G, B`` (and ``A``) channels in that order, otherwise the
+    channels sorted by name. Half and uint channels are converted to float32.
+
+    **Raises:** `FileNotFoundError` if `path` does not exist; `ValueError` if `path` does
+    not end in ``.exr`` or is not a readable OpenEXR image.
     """
     import OpenEXR
 
@@ -321,27 +308,23 @@ def write_png(path, image, *, exposure=None, gamma=2.2, bit_depth: int = 8) -> N
     percentile is 0, and an all-zero image stays black). The result is clipped to
     ``[0, 1]``, gamma-encoded as ``v ** (1 / gamma)`` and quantised to `bit_depth` bits.
 
-    Parameters
-    ----------
-    path : str or os.PathLike
-        Output file; must end in ``.png``. Parent directories are created.
-    image : array_like, shape (rows, cols), (rows, cols, 1) or (rows, cols, 3)
-        Linear, non-negative, finite values (e.g. relative irradiance), indexed
-        ``[y, x]``, row 0 at the top. 2-D and single-channel images are written as
-        grayscale, 3 channels as RGB. Any other channel count raises a `ValueError`
-        (pick or combine the channels you want to show first).
-    exposure : float, optional
-        Positive factor applied before clipping; replaces the automatic scale.
-    gamma : float
-        Display gamma (> 0); 1 writes linear values.
-    bit_depth : {8, 16}
-        Bits per sample; the file holds uint8 or uint16 samples accordingly.
+    **Arguments:**
 
-    Raises
-    ------
-    ValueError
-        For a bad `path` extension, a bad `image` (empty, wrong shape, NaN, infinite or
-        negative values), or bad `exposure`, `gamma` or `bit_depth`.
+    - `path`: output file, a `str` or `os.PathLike`; must end in ``.png``. Parent
+      directories are created.
+    - `image`: array-like of shape ``(rows, cols)``, ``(rows, cols, 1)`` or
+      ``(rows, cols, 3)``: linear, non-negative, finite values (e.g. relative
+      irradiance), indexed ``[y, x]``, row 0 at the top. 2-D and single-channel images are
+      written as grayscale, 3 channels as RGB. Any other channel count raises a
+      `ValueError` (pick or combine the channels you want to show first).
+    - `exposure`: optional positive float factor applied before clipping; replaces the
+      automatic scale. Default None (the automatic scale).
+    - `gamma`: display gamma (a float, > 0); 1 writes linear values; default 2.2.
+    - `bit_depth`: bits per sample, 8 or 16; the file holds uint8 or uint16 samples
+      accordingly; default 8.
+
+    **Raises:** `ValueError` for a bad `path` extension, a bad `image` (empty, wrong
+    shape, NaN, infinite or negative values), or bad `exposure`, `gamma` or `bit_depth`.
     """
     p = _as_path(path, (".png",))
     arr = _as_image(image, "image")
@@ -382,25 +365,20 @@ def write_png_linear16(path, array, *, vmin=None, vmax=None) -> tuple[float, flo
     clipped. Recover the data as ``vmin + read_image(path) * (vmax - vmin)`` (to within
     ``(vmax - vmin) / 65535 / 2``). If ``vmin == vmax`` every pixel is 0.
 
-    Parameters
-    ----------
-    path : str or os.PathLike
-        Output file; must end in ``.png``. Parent directories are created.
-    array : array_like, shape (rows, cols)
-        Finite values in any unit (e.g. a height map in metres), indexed ``[y, x]``.
-    vmin, vmax : float, optional
-        The data range to encode; default the minimum and maximum of `array`.
+    **Arguments:**
 
-    Returns
-    -------
-    (vmin, vmax) : tuple of float
-        The range used, in the unit of `array`.
+    - `path`: output file, a `str` or `os.PathLike`; must end in ``.png``. Parent
+      directories are created.
+    - `array`: array-like of shape ``(rows, cols)``: finite values in any unit (e.g. a
+      height map in metres), indexed ``[y, x]``.
+    - `vmin`, `vmax`: optional floats, the data range to encode; default the minimum and
+      maximum of `array`.
 
-    Raises
-    ------
-    ValueError
-        For a bad `path` extension, a bad `array` (not 2-D, empty, NaN or infinite) or
-        non-finite `vmin` / `vmax`, or ``vmin > vmax``.
+    **Returns:** ``(vmin, vmax)``, a tuple of floats: the range used, in the unit of
+    `array`.
+
+    **Raises:** `ValueError` for a bad `path` extension, a bad `array` (not 2-D, empty,
+    NaN or infinite) or non-finite `vmin` / `vmax`, or ``vmin > vmax``.
     """
     p = _as_path(path, (".png",))
     arr = _as_image(array, "array", ndims=(2,))
@@ -438,33 +416,25 @@ def _to_gray(img: np.ndarray, p: Path, *, exr: bool) -> np.ndarray:
 def read_image(path, *, as_gray: bool = True) -> np.ndarray:
     """Reads an image file as float32.
 
-    Parameters
-    ----------
-    path : str or os.PathLike
-        A ``.png``, ``.jpg`` / ``.jpeg``, ``.tif`` / ``.tiff`` or ``.exr`` file.
-    as_gray : bool
-        If True, return a 2-D array: RGB(A) is converted to luminance with the Rec. 709
-        weights (``0.2125 R + 0.7154 G + 0.0721 B``; alpha is dropped), gray + alpha
-        keeps the gray; an EXR must have one channel, or R, G, B (and A) by name.
-        If False, the channels are returned as stored.
+    **Arguments:**
 
-    Returns
-    -------
-    numpy.ndarray, float32, shape (rows, cols) or (rows, cols, C)
-        Unsigned integer images (8- or 16-bit PNG, JPEG, TIFF) scaled to ``[0, 1]`` (by
-        255 or 65535; signed integer TIFFs to ``[-1, 1]``); floating-point TIFF values
-        unchanged; EXR values linear, as `read_exr`.
+    - `path`: a ``.png``, ``.jpg`` / ``.jpeg``, ``.tif`` / ``.tiff`` or ``.exr`` file, a
+      `str` or `os.PathLike`.
+    - `as_gray`: a bool; default True. If True, return a 2-D array: RGB(A) is converted to
+      luminance with the Rec. 709 weights (``0.2125 R + 0.7154 G + 0.0721 B``; alpha is
+      dropped), gray + alpha keeps the gray; an EXR must have one channel, or R, G, B (and
+      A) by name. If False, the channels are returned as stored.
 
-    Raises
-    ------
-    FileNotFoundError
-        If `path` does not exist.
-    ValueError
-        For an unknown extension, an unreadable or corrupt file, or one that is not a
-        single picture (`jaxcaustics.io.probe.check_picture`, from the header, before
-        any pixel is decoded): several pages or frames, over 8192^2 pixels, or (with
-        `as_gray`) channels that are not gray, gray + alpha, RGB or RGBA (an EXR's by
-        name: Y, or R, G, B and A).
+    **Returns:** a float32 `numpy.ndarray` of shape ``(rows, cols)`` or
+    ``(rows, cols, C)``. Unsigned integer images (8- or 16-bit PNG, JPEG, TIFF) are scaled
+    to ``[0, 1]`` (by 255 or 65535; signed integer TIFFs to ``[-1, 1]``); floating-point
+    TIFF values unchanged; EXR values linear, as `read_exr`.
+
+    **Raises:** `FileNotFoundError` if `path` does not exist; `ValueError` for an unknown
+    extension, an unreadable or corrupt file, or one that is not a single picture
+    (`jaxcaustics.io.probe.check_picture`, from the header, before any pixel is decoded):
+    several pages or frames, over 8192^2 pixels, or (with `as_gray`) channels that are not
+    gray, gray + alpha, RGB or RGBA (an EXR's by name: Y, or R, G, B and A).
     """
     p = _as_path(path, READ_EXTENSIONS)
     as_gray = check_bool(as_gray, "as_gray")

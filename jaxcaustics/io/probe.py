@@ -106,7 +106,7 @@ def read_tiff_page(p: Path):
         if axis not in axes:
             data, axes = data[..., None], axes + axis
     data = np.moveaxis(data, [axes.index(a) for a in _TIFF_PLANE], [-3, -2, -1])
-    data = data.reshape(data.shape[-3:])
+    data = data.reshape(*data.shape[-3:])
     return data[..., 0] if data.shape[-1] == 1 else data
 
 

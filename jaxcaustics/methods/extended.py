@@ -1,17 +1,7 @@
 """Rendering under an extended source (`SunLight`, `AreaLight`): the source sampled
 (stratified: a sunflower over the Sun's disc, a grid or a sunflower over the die), one
 render per sample under a collimated or point light, the images averaged with the
-samples' weights.
-
-Sampling the source, not convolving the collimated image with its image on the screen:
-every method renders it the same way and the lens's own focusing of the source is kept
-(the convolution a design uses is 0.005-0.05 off the reference that samples the Sun,
-growing with the caustic's peak: `jaxcaustics.inverse.source_blur`). Each sample costs
-one render (compiled once: the samples share their shapes). Measured on a lens with two
-bumps 500 mm above a 48^2 screen (the Sun's blur 1.1 pixels), caustic triangles against
-the reference sampling 256 directions: 0.0083 relative L2 at 16 samples, 0.0040 at 64
-(the collimated render is 0.012 off the collimated reference, 0.100 off the Sun's); a
-designed lens's sharper caustic needs more (`SOURCE_SAMPLES`).
+samples' weights. See the design notes (``docs/design-notes.md``).
 """
 
 from __future__ import annotations

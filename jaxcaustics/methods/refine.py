@@ -1,25 +1,11 @@
-"""A method's error on the scene at hand, and ``render(scene, tolerance=t)`` refining
-until that error meets ``t``.
+"""A method's error on the scene at hand (`estimate_error`), and ``render(scene,
+tolerance=t)`` refining until that error meets ``t``.
 
-The anchor is an adaptive ODE solver's embedded error estimate: a method renders the
-scene at two settings of its accuracy knob, one twice as fine as the other along each
-side (`Method.refined`: two-pass supersampling, photon grids, traced rays), and the
-difference of the two images (`image_error`: relative L1 after a 1-pixel blur, the
-measure the tolerance is stated in) estimates the error of the finer one. For an error
-that halves with each refinement (first order) the difference *is* the finer image's
-error; for faster convergence it over-estimates it (three times for second order); for
-noise it is at least it. Light the method's model leaves out whatever the setting (the
-two-pass window's missed flux, light the spot lights do not carry) is added, as it is in
-both images. The estimate's reliability against the NumPy reference on held-out scenes is
-measured by ``benchmarks/bench_estimate.py``: it holds for the two-pass method (whose
-sub-samples each cover their own part of the pixel, so that refining converges to the
-exact image, and whose refining adds a Newton step to the hit) and for caustic
-triangles; for the caustic maps (their splats) and the spot lights (their model) most of
-the error is common to all settings, and the difference under-states it several times.
-An ellipsoid rendered as a mesh refines its tessellation together with the photon grid
-(with a fixed tessellation, its error was common to both settings and the estimate
-under-stated it 1.7 times). Only methods with `Method.estimate_is_reliable` are refined
-to a tolerance.
+As an adaptive ODE solver does, a method renders the scene at two settings of its
+accuracy knob, one twice as fine as the other along each side (`Method.refined`), and
+the difference of the two images (`image_error`) estimates the finer one's error. Only
+methods with `Method.estimate_is_reliable` are refined to a tolerance. See the design
+notes (``docs/design-notes.md``).
 """
 
 from __future__ import annotations

@@ -5,6 +5,8 @@ from __future__ import annotations
 
 from typing import Any
 
+import jax
+
 from .._checks import check_choice
 from ..scene.ellipsoid import EllipsoidScene
 from ..scene.mesh import MeshScene
@@ -57,3 +59,53 @@ def as_method(method: str | Method | None, knobs: dict[str, Any], scene) -> Meth
             f"{type(method).__name__}"
         )
     return method_class(method).from_knobs(**knobs)
+
+
+def method_for(scenes, method: str | Method | None = None, **knobs: Any) -> Method:
+    """The method that `render` runs on `scenes`, with every knob that depends on the
+    scene's values fixed: the one call to make before `jax.jit` or `jax.vmap`.
+
+    The defaults size some knobs from the scene's values (the two-pass window, the
+    triangles' splat window: ``"auto"``), and values are not known under a
+    transformation. Fix them first, on concrete scenes, then transform:
+
+    ```pycon
+    >>> extent = (0.0, 1.0, 0.0, 1.0)
+    >>> heights = jc.wave_heights((32, 32), extent, amplitude=0.002, depth=0.5)
+    >>> light, floor = jc.DirectionalLight.from_angles(0.0), jc.PlaneReceiver(extent, (32, 32))
+    >>> scene = jc.WaterScene(jc.HeightField(heights, extent), light, floor, rest_depth=0.5)
+    >>> method = jc.method_for(scene)  # the scene's method, its "auto" window sized
+    >>> method
+    TwoPass(samples_x=3, channels_y=2)
+    >>> image = jax.jit(lambda s: jc.render(s, method))(scene)
+    >>> batch = jc.devices.stack_scenes([scene, scene])  # or sized for several scenes
+    >>> jax.vmap(lambda s: jc.render(s, method))(batch).shape
+    (2, 32, 32)
+
+    ```
+
+    **Arguments:**
+
+    - `scenes`: a concrete scene, or a sequence of scenes of one type (the knobs are
+      then sized for the most demanding of them).
+    - `method`, `**knobs`: as for `render`: a method name and its knobs, a `Method`, or
+      ``None`` for the scene type's natural method.
+
+    **Returns:** a `Method` with no ``"auto"`` knob left that depends on scene values;
+    ``render(scene, method)`` then composes with `jit`, `vmap` and `grad` (under `grad`
+    the sized knobs stay constants).
+    """
+    many = isinstance(scenes, (list, tuple))
+    batch = list(scenes) if many else [scenes]
+    if not batch:
+        raise ValueError("`scenes` is empty: pass a scene or a sequence of scenes")
+    if any(isinstance(x, jax.core.Tracer) for x in jax.tree.leaves(batch)):
+        raise ValueError(
+            "`scenes` must be concrete (call `method_for` outside `jit`/`vmap`, then "
+            "transform `render(scene, method)`)"
+        )
+    chosen = as_method(method, knobs, batch[0])
+    reason = chosen.support(batch[0])
+    if reason and not isinstance(batch[0], chosen.scene_types):
+        raise ValueError(f"`method`: {reason}")
+    return chosen.sized_for(batch) if chosen.needs_sizing() else chosen

@@ -4,13 +4,16 @@ from __future__ import annotations
 
 import logging
 import warnings
-from typing import Any
+from typing import Any, cast
 
 import equinox as eqx
 import jax
 
 from .._checks import check_bool, check_number
-from ..scene.scene import WaterScene
+from ..scene.ellipsoid import EllipsoidScene
+from ..scene.mesh import MeshScene
+from ..scene.mirror import MirrorScene
+from ..scene.scene import LensScene, WaterScene
 from .base import Method, worst
 from .choose import DEFAULT_MARGIN, as_mesh_scene, choose_method
 from .extended import is_extended, render_over_source
@@ -50,8 +53,8 @@ def _warn_unsupported(method: Method, scene) -> None:
     if reason:
         warnings.warn(
             f"render: method {method.name!r} does not model this scene ({reason}): its "
-            "image can be far from the reference (`jc.method_support` says which methods "
-            "do; `tolerance=` chooses one)",
+            "image can be far from the reference (`jc.internal.method_support` says which "
+            "methods do; `tolerance=` chooses one)",
             stacklevel=3,
         )
 
@@ -73,7 +76,7 @@ def _warn_limited(limited) -> None:
 
 
 def render(
-    scene: WaterScene,
+    scene: WaterScene | LensScene | MirrorScene | MeshScene | EllipsoidScene,
     method: str | Method | None = None,
     *,
     tolerance: float | None = None,
@@ -126,8 +129,9 @@ def render(
       its directions or points are rendered and averaged (stratified; default
       `SOURCE_SAMPLES`, 64: `jaxcaustics.methods.extended`); ``stats["source_samples"]``.
       With a collimated or point light it must be None.
-    - `**knobs`: the knobs of the named method (the fields of its class; see `two_pass`,
-      `caustic_triangles`, `caustics_mapping`, `adaptive_caustic_map`, `spot_lights`).
+    - `**knobs`: the knobs of the named method (the fields of its class, described
+      there: `TwoPass`, `CausticTriangles`, `CausticsMapping`, `AdaptiveCausticMap`,
+      `SpotLightMethod`).
 
     Every argument is checked before anything is compiled: `method` one of the names
     above, `return_stats` and `refine` bools, `tolerance` a positive number, `margin` a
@@ -138,6 +142,28 @@ def render(
     **Returns:** the irradiance image, relative to the irradiance the light gives a
     horizontal plane: ``(rows, cols)`` for a single index of refraction, ``(rows, cols,
     channels)`` for a sequence of indices. With `return_stats`, ``(image, stats)``.
+
+    **Example:** a sea's caustics on the pool floor (flat water would give 1 everywhere).
+
+    ```pycon
+    >>> extent = (0.0, 1.0, 0.0, 1.0)  # metres
+    >>> heights = jc.wave_heights((32, 32), extent, amplitude=0.002, depth=0.5)
+    >>> scene = jc.WaterScene(
+    ...     jc.HeightField(heights, extent),
+    ...     jc.DirectionalLight.from_angles(0.0),
+    ...     jc.PlaneReceiver(extent, (32, 32)),
+    ...     rest_depth=0.5,
+    ... )
+    >>> image = jc.render(scene)  # water: Yuksel & Keyser's two-pass method
+    >>> image.shape
+    (32, 32)
+    >>> round(float(image.mean()), 3)  # the light is moved about, none lost
+    1.0
+
+    ```
+
+    Under `jax.jit` or `jax.vmap`, fix the knobs sized from the scene first
+    (`method_for`).
     """
     return_stats = check_bool(return_stats, "return_stats")
     if refine is not None:
@@ -145,9 +171,9 @@ def render(
     if method is not None and not isinstance(method, Method):
         method_class(method)  # the name checked before anything is chosen or compiled
     if tolerance is None:
-        for name, value in (("margin", margin), ("budget_s", budget_s), ("refine", refine)):
+        for option, value in (("margin", margin), ("budget_s", budget_s), ("refine", refine)):
             if value not in (None, False):
-                raise ValueError(f"`{name}` applies only with `tolerance`")
+                raise ValueError(f"`{option}` applies only with `tolerance`")
     elif knobs:
         raise ValueError(f"`tolerance` picks the knobs: do not pass {sorted(knobs)} with it")
     elif isinstance(method, Method) and not eqx.tree_equal(method, type(method)()):
@@ -188,7 +214,7 @@ def render(
         result, info = refine_to_tolerance(
             scene, tolerance, method=name, margin=margin, budget_s=budget_s
         )
-        method = info["method"]
+        method = cast(Method, info["method"])  # the method rendered
         logger.info("render: %s, refined to %r", info["choice"], method)
         stats = {k: info[k] for k in ("choice", "subdivisions", "error_estimate", "levels")}
     else:
@@ -197,7 +223,8 @@ def render(
         margin = DEFAULT_MARGIN if margin is None else margin
         choice = choose_method(scene, tolerance, method=name, margin=margin)
         logger.info("render: %s", choice)
-        if choice.as_mesh:
+        if choice.as_mesh:  # (an EllipsoidScene's rows only: `choose_method`)
+            assert isinstance(scene, EllipsoidScene)  # (for mypy)
             scene = as_mesh_scene(scene, choice.as_mesh["subdivisions"])
         method = method_class(choice.method).from_knobs(**choice.knobs)
         result = method(scene)

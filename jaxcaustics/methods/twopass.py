@@ -465,8 +465,8 @@ def auto_window(
     """``(N, M)`` just large enough for the scene's largest ray displacement.
 
     Traces the pre-pass once (needs concrete scene values: call it outside `jit` and
-    `vmap`; under `grad` the window is a constant). The defaults are `two_pass`'s.
-    `hit_iterations`, `supersample` and `memory_limit` as in `two_pass` (the pre-pass
+    `vmap`; under `grad` the window is a constant). The defaults are `TwoPass`'s.
+    `hit_iterations`, `supersample` and `memory_limit` as in `TwoPass` (the pre-pass
     of the smallest window must fit in `memory_limit`).
     """
     hit_iterations, supersample, memory_limit = _check_knobs(
@@ -479,9 +479,9 @@ def auto_window(
     except jax.errors.ConcretizationTypeError:
         raise ValueError(
             "samples_x='auto' / channels_y='auto' (the defaults) size the window from the "
-            "scene's values, which are not known under jit or vmap: pass integers there, "
-            "for example `auto_window(scene)` computed beforehand, or TwoPass.paper()'s "
-            "samples_x=7, channels_y=6"
+            "scene's values, which are not known under jit or vmap: fix them first with "
+            "`method = jc.method_for(scene)` and transform `render(scene, method)`, or pass "
+            "integers (TwoPass.paper()'s samples_x=7, channels_y=6)"
         ) from None
     half_x, half_y = (min(MAX_AUTO_HALF_WINDOW, max(1, math.ceil(s - 1e-6))) for s in (sx, sy))
     return 2 * half_x + 1, 2 * half_y
@@ -489,13 +489,42 @@ def auto_window(
 
 class TwoPass(Method):
     """Yuksel & Keyser's two-pass caustics of height-field water: ``TwoPass(samples_x=...,
-    ...)(scene)`` or ``render(scene, TwoPass(...))``. The knobs (and their defaults) are
-    those of `two_pass`: `samples_x` (N), `channels_y` (M), `hit_iterations`,
-    `supersample`, `memory_limit`. Renders `WaterScene` only.
+    ...)(scene)`` or ``render(scene, TwoPass(...))``. Renders `WaterScene` only.
 
     The defaults (the window sized from the scene, 2 x 2 samples per pixel) are accurate
     rather than the paper's; `TwoPass.paper()` is the paper's method (a 7 x 7 window,
-    one sample per pixel)."""
+    one sample per pixel).
+
+    **Arguments:**
+
+    - `samples_x`: N, samples along ``x`` per pixel (odd); ``"auto"`` (the default)
+      sizes the window along ``x`` from the largest ray displacement. ``"auto"``
+      traces the pre-pass once more and needs concrete scene values: it works under
+      `grad` (the window is a constant there) but not under `jit` or `vmap`: pass
+      integers there (sized beforehand by ``method_for(scene)``, which calls
+      `auto_window`, or the paper's 7 and 6).
+    - `channels_y`: M, so that ``M + 1`` neighbouring pixels along ``y`` are reached
+      (even); ``"auto"`` (the default) as above, along ``y``.
+    - `hit_iterations`: Newton steps to find where each light ray meets the moving
+      surface (default 3; 0 uses the rest-plane point; oblique light needs 2-4).
+    - `supersample`: S (default 2), so that ``S x S`` samples per pixel are gathered, each
+      carrying ``1/S^2`` of the pixel's light and spread over a square ``1/S`` pixel
+      on a side (its own part of the pixel: under flat water they tile it). 1 is the
+      paper's method (one pixel-sized square per pixel), which blurs the caustic by
+      a pixel and leaves a faint pixel-grid ripple where the light is stretched or
+      squeezed; as S grows the image converges to the exact irradiance binned into
+      pixels (the error falls about 3x per doubling of S on held-out seas), at about
+      ``S^2`` times the cost of the gather.
+    - `memory_limit`: bytes (default 1 GiB). The render's memory is estimated before
+      anything is compiled (`two_pass_bytes`: it grows with the receiver's pixels,
+      ``S^2`` and the window ``N x (M + 1)``); over the limit it raises a `ValueError`
+      with the estimate (with ``"auto"``, first for the smallest window, then for the
+      one chosen).
+
+    Knobs are checked before anything is compiled: ints are ints (no bools or floats),
+    `hit_iterations` in ``[0, 100]``; an int beside an ``"auto"`` is kept (and checked
+    first).
+    """
 
     samples_x: int | Literal["auto"] = "auto"
     channels_y: int | Literal["auto"] = "auto"
@@ -580,35 +609,8 @@ def two_pass(
 ) -> TwoPassResult:
     """Caustics of `scene` by Yuksel & Keyser's two-pass gather.
 
-    **Arguments:**
-
-    - `scene`: a `WaterScene`.
-    - `samples_x`: N, samples along ``x`` per pixel (odd); ``"auto"`` (the default)
-      sizes the window along ``x`` from the largest ray displacement. ``"auto"``
-      traces the pre-pass once more and needs concrete scene values: it works under
-      `grad` (the window is a constant there) but not under `jit` or `vmap`: pass
-      integers there (from `auto_window` computed beforehand, or the paper's 7 and 6).
-    - `channels_y`: M, so that ``M + 1`` neighbouring pixels along ``y`` are reached
-      (even); ``"auto"`` (the default) as above, along ``y``.
-    - `hit_iterations`: Newton steps to find where each light ray meets the moving
-      surface (0 uses the rest-plane point; oblique light needs 2-4).
-    - `supersample`: S (default 2), so that ``S x S`` samples per pixel are gathered, each
-      carrying ``1/S^2`` of the pixel's light and spread over a square ``1/S`` pixel
-      on a side (its own part of the pixel: under flat water they tile it). 1 is the
-      paper's method (one pixel-sized square per pixel), which blurs the caustic by
-      a pixel and leaves a faint pixel-grid ripple where the light is stretched or
-      squeezed; as S grows the image converges to the exact irradiance binned into
-      pixels (the error falls about 3x per doubling of S on held-out seas), at about
-      ``S^2`` times the cost of the gather.
-    - `memory_limit`: bytes (default 1 GiB). The render's memory is estimated before
-      anything is compiled (`two_pass_bytes`: it grows with the receiver's pixels,
-      ``S^2`` and the window ``N x (M + 1)``); over the limit it raises a `ValueError`
-      with the estimate (with ``"auto"``, first for the smallest window, then for the
-      one chosen).
-
-    Knobs are checked before anything is compiled: ints are ints (no bools or floats),
-    `hit_iterations` in ``[0, 100]``; an int beside an ``"auto"`` is kept (and checked
-    first).
+    The function form of `TwoPass`: `scene` (a `WaterScene`) and the same knobs as
+    keywords, described there.
 
     **Returns:** a `TwoPassResult` with the irradiance image and the missed-flux
     fraction. Jit-compiled; differentiable with respect to every array of the scene

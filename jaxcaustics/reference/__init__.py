@@ -4,8 +4,8 @@ This package imports no JAX (nor anything from the library's private ``jaxcausti
 modules), only NumPy and the standard library, so it shares no code with the methods it
 checks. It reads a `jaxcaustics.WaterScene`, `LensScene` or `MeshScene` by duck typing
 (``np.asarray`` on its fields) and computes everything in float64. It favours exactness
-over speed, but is vectorised: a few million photons take seconds (ray/mesh tracing is
-slower: some 50 000 to 150 000 photons per second through a mesh of a thousand faces).
+over speed, but is vectorised (its throughput: see the design notes,
+``docs/design-notes.md``).
 
 Public functions
 ----------------

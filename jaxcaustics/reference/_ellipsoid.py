@@ -276,26 +276,25 @@ def trace_ellipsoid_rays(
     Occluders, the receiver and the light are not used: each ray follows its own
     direction from its origin, which must lie outside the generator.
 
-    Parameters
-    ----------
-    scene : EllipsoidScene
-        Read by duck typing (``generator``, ``ior``, ``fresnel``, ``interfaces``).
-    origins, directions : array_like, shape (N, 3)
-        Rays ``o + t d``, ``t > 0`` (directions are normalised here).
+    **Arguments:**
 
-    Returns
-    -------
-    exit_origin : np.ndarray, shape (C, N, 3)
-        Where each ray leaves the generator (meaningless unless it exited),
-        ``C = len(scene.iors)``.
-    exit_direction : np.ndarray, shape (C, N, 3)
-        Unit direction after leaving it.
-    transmittance : np.ndarray, shape (C, N)
-        The product of the Fresnel transmittances of its refractions (1 without Fresnel;
-        total internal reflections count 1); 0 unless it exited.
-    status : np.ndarray of str, shape (C, N)
-        ``"exited"``, ``"missed"`` (never met the generator) or ``"dropped"`` (still
-        inside after ``scene.interfaces`` events).
+    - `scene`: an `EllipsoidScene`, read by duck typing (``generator``, ``ior``,
+      ``fresnel``, ``interfaces``).
+    - `origins`, `directions`: array-likes of shape ``(N, 3)``: rays ``o + t d``,
+      ``t > 0`` (directions are normalised here).
+
+    **Returns:** ``(exit_origin, exit_direction, transmittance, status)``:
+
+    - `exit_origin`: `np.ndarray` of shape ``(C, N, 3)``, where each ray leaves the
+      generator (meaningless unless it exited), ``C = len(scene.iors)``.
+    - `exit_direction`: `np.ndarray` of shape ``(C, N, 3)``, the unit direction after
+      leaving it.
+    - `transmittance`: `np.ndarray` of shape ``(C, N)``, the product of the Fresnel
+      transmittances of its refractions (1 without Fresnel; total internal reflections
+      count 1); 0 unless it exited.
+    - `status`: `np.ndarray` of strings, shape ``(C, N)``, ``"exited"``, ``"missed"``
+      (never met the generator) or ``"dropped"`` (still inside after
+      ``scene.interfaces`` events).
     """
     es = _read_scene(scene, need_receiver=False)
     o, d, w = _rays(origins, directions, 1.0)
@@ -354,35 +353,29 @@ def trace_ellipsoid(
     that went through the generator count (no direct light). Photons are processed in
     batches of 65536, so memory stays small for any grid.
 
-    Parameters
-    ----------
-    scene : EllipsoidScene
-        Read by duck typing: ``generator`` and ``occluders`` (``center``, ``radii``,
-        ``rotation``), ``light`` (directional), ``receiver``, ``ior``, ``fresnel``,
-        ``interfaces``.
-    photons_per_axis : int or (int, int), default 512
-        The emission grid: ``(rows, cols)``; an integer ``n`` gives ``n x n``.
-    jitter : bool, default False
-        Jitter each photon uniformly inside its cell (``numpy.random.default_rng(seed)``).
-    seed : int, default 0
-        Seed for the jitter.
-    return_stats : bool, default False
-        Also return a dict of photon counts (ints, or a tuple per channel for a sequence
-        of indices), as `trace_mesh`: ``emitted``, ``hit_generator``, ``missed``,
-        ``blocked``, ``dropped``, ``upward``, ``landed``, ``on_receiver``,
-        ``tir_photons``, ``tir_events``;
-        ``emitted = missed + blocked + dropped + upward + landed``.
+    **Arguments:**
 
-    memory_limit : int or None, default None
-        Bytes of photons traced at a time (``PHOTON_BYTES`` = 1024 per photon, an
-        estimate of its arrays and temporaries); ``None``: 2^16 (64 MiB) photons at a time.
-        The image does not depend on it (up to the order of float64 sums).
-    Returns
-    -------
-    np.ndarray, float64
-        Shape ``(rows, cols)`` for a scalar index, ``(rows, cols, C)`` for ``C``
-        indices: irradiance relative to the light's irradiance on a horizontal plane.
-        With `return_stats`, ``(image, stats)``.
+    - `scene`: an `EllipsoidScene`, read by duck typing: ``generator`` and ``occluders``
+      (``center``, ``radii``, ``rotation``), ``light`` (directional), ``receiver``,
+      ``ior``, ``fresnel``, ``interfaces``.
+    - `photons_per_axis`: the emission grid, an int or ``(rows, cols)``; an integer ``n``
+      gives ``n x n``; default 512.
+    - `jitter`: jitter each photon uniformly inside its cell
+      (``numpy.random.default_rng(seed)``); default False.
+    - `seed`: int seed for the jitter; default 0.
+    - `return_stats`: also return a dict of photon counts (ints, or a tuple per channel
+      for a sequence of indices), as `trace_mesh`; default False: ``emitted``,
+      ``hit_generator``, ``missed``, ``blocked``, ``dropped``, ``upward``, ``landed``,
+      ``on_receiver``, ``tir_photons``, ``tir_events``;
+      ``emitted = missed + blocked + dropped + upward + landed``.
+    - `memory_limit`: bytes of photons traced at a time, an int or None (``PHOTON_BYTES``
+      = 1024 per photon, an estimate of its arrays and temporaries); default None: 2^16
+      (64 MiB) photons at a time. The image does not depend on it (up to the order of
+      float64 sums).
+
+    **Returns:** a float64 `np.ndarray` of shape ``(rows, cols)`` for a scalar index,
+    ``(rows, cols, C)`` for ``C`` indices: irradiance relative to the light's irradiance
+    on a horizontal plane. With `return_stats`, ``(image, stats)``.
     """
     es = _read_scene(scene)
     rows, cols = _grid_shape(photons_per_axis)
@@ -393,7 +386,7 @@ def trace_ellipsoid(
     rec = es.receiver
     c = len(es.iors)
     flux = np.zeros((c, rec.shape[0] * rec.shape[1]))
-    keys = ("missed", "blocked", "dropped", "upward", "landed", "on_receiver")
+    keys: tuple[str, ...] = ("missed", "blocked", "dropped", "upward", "landed", "on_receiver")
     keys += ("hit_generator", "tir_photons", "tir_events")
     counts = {key: np.zeros(c, dtype=np.int64) for key in keys}
     codes = {"missed": MISSED, "blocked": BLOCKED, "dropped": DROPPED, "upward": UPWARD}

@@ -249,7 +249,7 @@ def _field_to_world(surf: _Surface, u: np.ndarray, v: np.ndarray) -> tuple[np.nd
 
 
 def _in_aperture(
-    surf: _Surface, x: np.ndarray, y: np.ndarray, outline: str = "rectangle"
+    surf: _Surface, x: np.ndarray, y: np.ndarray, outline: str | tuple = "rectangle"
 ) -> np.ndarray:
     """Whether world points of the rest plane lie in the (rotated) extent, half-open, and
     inside the outline: the ellipse inscribed in it (rim included), or a polygon."""
@@ -263,7 +263,7 @@ def _in_aperture(
         return inside
     ex = (x - 0.5 * (e[0] + e[1])) / (0.5 * (e[1] - e[0]))
     ey = (y - 0.5 * (e[2] + e[3])) / (0.5 * (e[3] - e[2]))
-    if outline == "ellipse":
+    if isinstance(outline, str):  # "ellipse", the only other name `_read_outline` takes
         return inside & (ex * ex + ey * ey <= 1.0)
     # a polygon: the crossing number of a ray towards +x (odd: inside)
     crossings = np.zeros(x.shape, dtype=bool)
@@ -446,28 +446,26 @@ def trace_lens_photons(scene, xs, ys) -> tuple[np.ndarray, np.ndarray, np.ndarra
     refracts into the glass, goes to the bottom face ``z = screen_distance``, refracts out (total
     internal reflection loses it) and lands on ``z = 0``.
 
-    Parameters
-    ----------
-    scene : LensScene
-        Read by duck typing (see the module docstring).
-    xs, ys : array_like, shape (N,)
-        Points of the rest plane ``z = screen_distance + thickness``, metres.
+    **Arguments:**
 
-    Returns
-    -------
-    landing_xy : np.ndarray, shape (C, N, 2)
-        Landing points on ``z = 0`` (0 where not alive), ``C = len(scene.iors)``.
-    weight : np.ndarray, shape (C, N)
-        Flux per unit of (horizontal) rest-plane area the photon's bundle carries to the
-        screen: the product of the Fresnel transmittances of both faces (1 without
-        Fresnel) for a directional light (relative to the light's irradiance on a
-        horizontal plane), times ``I |w_z| / r^2`` for a point light (``w`` the unit ray
-        direction, ``r`` the distance from the light to the rest-plane point); 0 where
-        not alive. A photon standing for rest-plane area ``A`` adds ``weight * A`` to the
-        flux of the pixel it lands in.
-    alive : np.ndarray of bool, shape (C, N)
-        False outside the aperture, under total internal reflection, or when the ray in
-        the glass does not go down to the bottom face.
+    - `scene`: a `LensScene`, read by duck typing (see the module docstring).
+    - `xs`, `ys`: array-likes of shape ``(N,)``: points of the rest plane
+      ``z = screen_distance + thickness``, metres.
+
+    **Returns:** ``(landing_xy, weight, alive)``:
+
+    - `landing_xy`: `np.ndarray` of shape ``(C, N, 2)``, landing points on ``z = 0`` (0
+      where not alive), ``C = len(scene.iors)``.
+    - `weight`: `np.ndarray` of shape ``(C, N)``, the flux per unit of (horizontal)
+      rest-plane area the photon's bundle carries to the screen: the product of the
+      Fresnel transmittances of both faces (1 without Fresnel) for a directional light
+      (relative to the light's irradiance on a horizontal plane), times ``I |w_z| / r^2``
+      for a point light (``w`` the unit ray direction, ``r`` the distance from the light
+      to the rest-plane point); 0 where not alive. A photon standing for rest-plane area
+      ``A`` adds ``weight * A`` to the flux of the pixel it lands in.
+    - `alive`: `np.ndarray` of bools, shape ``(C, N)``, False outside the aperture, under
+      total internal reflection, or when the ray in the glass does not go down to the
+      bottom face.
     """
     lens = _read_lens(scene)
     x, y = _check_points(xs, ys)
@@ -485,12 +483,11 @@ def emit_lens_photons(
     uniformly jittered inside it); points are then rotated with the field into world
     coordinates.
 
-    Returns
-    -------
-    xs, ys : np.ndarray, shape (rows * cols,)
-        Start points on the rest plane, row-major over the grid.
-    area : float
-        The rest-plane area of one cell, m^2.
+    **Returns:** ``(xs, ys, area)``:
+
+    - `xs`, `ys`: `np.ndarray` of shape ``(rows * cols,)``, start points on the rest
+      plane, row-major over the grid.
+    - `area`: a float, the rest-plane area of one cell, m^2.
     """
     lens = _read_lens(scene)
     rows, cols = _grid_shape(photons_per_axis, MAX_EMITTED)
@@ -525,36 +522,30 @@ def trace_lens(
     ``I |w_z| / r^2`` for a point light), is traced exactly and binned into the receiver's
     pixels; photons landing off the receiver are dropped.
 
-    Parameters
-    ----------
-    scene : LensScene
-        Read by duck typing (see the module docstring).
-    photons_per_axis : int or (int, int), default 512
-        The emission grid over the aperture: ``(rows, cols)`` photons along the field's
-        y and x axes; an integer ``n`` gives ``n x n``. The accuracy knob: the flux
-        binned is exact up to the quadrature of the grid (midpoint rule over each cell).
-    jitter : bool, default False
-        Jitter each photon uniformly inside its cell (``numpy.random.default_rng(seed)``,
-        draws in row-major cell order).
-    seed : int, default 0
-        Seed for the jitter.
-    return_stats : bool, default False
-        Also return a dict of photon counts (ints, or one int per channel for a sequence
-        of indices): ``emitted``, ``lost_tir`` (total internal reflection at either face),
-        ``lost_no_bottom`` (the refracted ray does not go down to the bottom face),
-        ``landed`` (on ``z = 0``), ``on_receiver``.
+    **Arguments:**
 
-    memory_limit : int or None, default None
-        Bytes of photons traced at a time (``PHOTON_BYTES`` = 1024 per photon, an
-        estimate of its arrays and temporaries); ``None``: 2^17 (128 MiB) photons at a time.
-        The image does not depend on it (up to the order of float64 sums).
-    Returns
-    -------
-    np.ndarray, float64
-        Shape ``(rows, cols)`` for a scalar ``scene.ior``, ``(rows, cols, C)`` for ``C``
-        indices: irradiance relative to the light's irradiance on a horizontal plane
-        (directional light; a flat slab under normal light gives 1 without Fresnel), or
-        W/m^2 (point light). With `return_stats`, ``(image, stats)``.
+    - `scene`: a `LensScene`, read by duck typing (see the module docstring).
+    - `photons_per_axis`: the emission grid over the aperture, an int or
+      ``(rows, cols)`` photons along the field's y and x axes; an integer ``n`` gives
+      ``n x n``; default 512. The accuracy knob: the flux binned is exact up to the
+      quadrature of the grid (midpoint rule over each cell).
+    - `jitter`: jitter each photon uniformly inside its cell
+      (``numpy.random.default_rng(seed)``, draws in row-major cell order); default False.
+    - `seed`: int seed for the jitter; default 0.
+    - `return_stats`: also return a dict of photon counts (ints, or one int per channel
+      for a sequence of indices); default False: ``emitted``, ``lost_tir`` (total
+      internal reflection at either face), ``lost_no_bottom`` (the refracted ray does not
+      go down to the bottom face), ``landed`` (on ``z = 0``), ``on_receiver``.
+    - `memory_limit`: bytes of photons traced at a time, an int or None (``PHOTON_BYTES``
+      = 1024 per photon, an estimate of its arrays and temporaries); default None: 2^17
+      (128 MiB) photons at a time. The image does not depend on it (up to the order of
+      float64 sums).
+
+    **Returns:** a float64 `np.ndarray` of shape ``(rows, cols)`` for a scalar
+    ``scene.ior``, ``(rows, cols, C)`` for ``C`` indices: irradiance relative to the
+    light's irradiance on a horizontal plane (directional light; a flat slab under normal
+    light gives 1 without Fresnel), or W/m^2 (point light). With `return_stats`,
+    ``(image, stats)``.
     """
     lens = _read_lens(scene)
     chunk = chunk_photons(memory_limit, _CHUNK)

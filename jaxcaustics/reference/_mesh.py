@@ -243,24 +243,23 @@ def intersect_mesh(
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Nearest hit of rays with a triangle mesh (exact Möller–Trumbore, float64).
 
-    Parameters
-    ----------
-    vertices : array_like, shape (V, 3)
-    faces : array_like of int, shape (F, 3)
-    origins, directions : array_like, shape (N, 3)
-        Rays ``o + t d`` (``d`` need not be unit; ``t`` is in its units).
-    t_min : float, default 0.0
-        Only hits with ``t > t_min`` count.
+    **Arguments:**
 
-    Returns
-    -------
-    t : np.ndarray, shape (N,)
-        Ray parameter of the nearest hit, ``inf`` where none.
-    face : np.ndarray of int, shape (N,)
-        Index of the face hit, -1 where none.
-    barycentrics : np.ndarray, shape (N, 3)
-        ``(b0, b1, b2)`` of the hit point in the face's vertices (0 where none). A ray
-        through a shared edge or vertex reports one of the faces there.
+    - `vertices`: array-like of shape ``(V, 3)``.
+    - `faces`: array-like of ints, shape ``(F, 3)``.
+    - `origins`, `directions`: array-likes of shape ``(N, 3)``: rays ``o + t d`` (``d``
+      need not be unit; ``t`` is in its units).
+    - `t_min`: only hits with ``t > t_min`` count (a float); default 0.0.
+
+    **Returns:** ``(t, face, barycentrics)``:
+
+    - `t`: `np.ndarray` of shape ``(N,)``, the ray parameter of the nearest hit, ``inf``
+      where none.
+    - `face`: `np.ndarray` of ints, shape ``(N,)``, the index of the face hit, -1 where
+      none.
+    - `barycentrics`: `np.ndarray` of shape ``(N, 3)``, ``(b0, b1, b2)`` of the hit point
+      in the face's vertices (0 where none). A ray through a shared edge or vertex reports
+      one of the faces there.
     """
     v, f = _mesh_arrays(vertices, faces, "mesh")
     o, d = (_real(a, name) for a, name in ((origins, "origins"), (directions, "directions")))
@@ -504,25 +503,24 @@ def trace_mesh_photons(
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Trace given photons through a `MeshScene`, one channel per index of refraction.
 
-    Parameters
-    ----------
-    scene : MeshScene
-        Read by duck typing (see the module docstring).
-    origins, directions : array_like, shape (N, 3)
-        Rays ``o + t d``, ``t > 0`` (directions are normalised here). Start them before
-        anything they should meet (from the light).
-    weights : array_like, shape (N,) or scalar, default 1.0
-        Flux each photon carries (see `emit_mesh_photons`).
+    **Arguments:**
 
-    Returns
-    -------
-    landing_xy : np.ndarray, shape (C, N, 2)
-        Landing points on ``z = 0`` (0 where not alive); ``C = 1`` for a mirror.
-    weight : np.ndarray, shape (C, N)
-        Flux reaching the screen: `weights` times the Fresnel transmittance of every
-        refraction if ``scene.fresnel``; 0 where not alive.
-    alive : np.ndarray of bool, shape (C, N)
-        True for photons that met the generator and landed on ``z = 0`` (anywhere).
+    - `scene`: a `MeshScene`, read by duck typing (see the module docstring).
+    - `origins`, `directions`: array-likes of shape ``(N, 3)``: rays ``o + t d``,
+      ``t > 0`` (directions are normalised here). Start them before anything they should
+      meet (from the light).
+    - `weights`: array-like of shape ``(N,)`` or a scalar, the flux each photon carries
+      (see `emit_mesh_photons`); default 1.0.
+
+    **Returns:** ``(landing_xy, weight, alive)``:
+
+    - `landing_xy`: `np.ndarray` of shape ``(C, N, 2)``, landing points on ``z = 0`` (0
+      where not alive); ``C = 1`` for a mirror.
+    - `weight`: `np.ndarray` of shape ``(C, N)``, the flux reaching the screen: `weights`
+      times the Fresnel transmittance of every refraction if ``scene.fresnel``; 0 where
+      not alive.
+    - `alive`: `np.ndarray` of bools, shape ``(C, N)``, True for photons that met the
+      generator and landed on ``z = 0`` (anywhere).
     """
     ms = _read_mesh_scene(scene)
     o, d, w = _rays(origins, directions, weights)
@@ -655,42 +653,35 @@ def trace_mesh(
     ``scene.interfaces`` events; see the module docstring) and binned into the receiver's
     pixels. Only photons that met the generator count (no direct light).
 
-    Parameters
-    ----------
-    scene : MeshScene
-        Read by duck typing.
-    photons_per_axis : int or (int, int), default 512
-        The emission grid over the generator's projection: ``(rows, cols)``; an integer
-        ``n`` gives ``n x n``. The accuracy knob (midpoint quadrature of the light's flux
-        over each cell).
-    jitter : bool, default False
-        Jitter each photon uniformly inside its cell (``numpy.random.default_rng(seed)``,
-        draws in row-major cell order).
-    seed : int, default 0
-        Seed for the jitter.
-    return_stats : bool, default False
-        Also return a dict of photon counts (ints, or a tuple of ints per channel for a
-        sequence of indices): ``emitted``; ``hit_generator`` (met the generator before
-        any occluder); ``missed`` (never met the generator); ``blocked`` (stopped by an
-        occluder, before or after the generator); ``dropped`` (too many interfaces: still
-        inside after ``scene.interfaces`` events, or about to meet the generator again);
-        ``upward`` (left the generator going up or horizontally: never lands);
-        ``landed`` (reached ``z = 0``); ``on_receiver`` (landed on the receiver);
-        ``tir_photons`` (photons reflected totally at least once: in a mesh total
-        internal reflection loses nothing by itself, such photons end up in one of the
-        other fates) and ``tir_events`` (number of total internal reflections).
-        ``emitted = missed + blocked + dropped + upward + landed``.
+    **Arguments:**
 
-    memory_limit : int or None, default None
-        Bytes of photons traced at a time (``PHOTON_BYTES`` = 1024 per photon, an
-        estimate of its arrays and temporaries); ``None``: 2^16 (64 MiB) photons at a time.
-        The image does not depend on it (up to the order of float64 sums).
-    Returns
-    -------
-    np.ndarray, float64
-        Shape ``(rows, cols)`` (a scalar index, or a mirror) or ``(rows, cols, C)``:
-        irradiance relative to the light's irradiance on a horizontal plane (directional
-        light) or W/m^2 (point light). With `return_stats`, ``(image, stats)``.
+    - `scene`: a `MeshScene`, read by duck typing.
+    - `photons_per_axis`: the emission grid over the generator's projection, an int or
+      ``(rows, cols)``; an integer ``n`` gives ``n x n``; default 512. The accuracy knob
+      (midpoint quadrature of the light's flux over each cell).
+    - `jitter`: jitter each photon uniformly inside its cell
+      (``numpy.random.default_rng(seed)``, draws in row-major cell order); default False.
+    - `seed`: int seed for the jitter; default 0.
+    - `return_stats`: also return a dict of photon counts (ints, or a tuple of ints per
+      channel for a sequence of indices); default False: ``emitted``; ``hit_generator``
+      (met the generator before any occluder); ``missed`` (never met the generator);
+      ``blocked`` (stopped by an occluder, before or after the generator); ``dropped``
+      (too many interfaces: still inside after ``scene.interfaces`` events, or about to
+      meet the generator again); ``upward`` (left the generator going up or horizontally:
+      never lands); ``landed`` (reached ``z = 0``); ``on_receiver`` (landed on the
+      receiver); ``tir_photons`` (photons reflected totally at least once: in a mesh total
+      internal reflection loses nothing by itself, such photons end up in one of the
+      other fates) and ``tir_events`` (number of total internal reflections).
+      ``emitted = missed + blocked + dropped + upward + landed``.
+    - `memory_limit`: bytes of photons traced at a time, an int or None (``PHOTON_BYTES``
+      = 1024 per photon, an estimate of its arrays and temporaries); default None: 2^16
+      (64 MiB) photons at a time. The image does not depend on it (up to the order of
+      float64 sums).
+
+    **Returns:** a float64 `np.ndarray` of shape ``(rows, cols)`` (a scalar index, or a
+    mirror) or ``(rows, cols, C)``: irradiance relative to the light's irradiance on a
+    horizontal plane (directional light) or W/m^2 (point light). With `return_stats`,
+    ``(image, stats)``.
     """
     ms = _read_mesh_scene(scene)
     chunk = chunk_photons(memory_limit, _CHUNK)
@@ -701,7 +692,7 @@ def trace_mesh(
     rec = ms.receiver
     c = len(ms.iors)
     flux = np.zeros((c, rec.shape[0] * rec.shape[1]))
-    keys = ("missed", "blocked", "dropped", "upward", "landed", "on_receiver")
+    keys: tuple[str, ...] = ("missed", "blocked", "dropped", "upward", "landed", "on_receiver")
     keys += ("tir_photons", "tir_events")
     counts = {key: np.zeros(c, dtype=np.int64) for key in keys}
     codes = {"missed": MISSED, "blocked": BLOCKED, "dropped": DROPPED, "upward": UPWARD}

@@ -13,26 +13,24 @@ def refract(
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Refract unit direction `direction` from index 1 into index `ior` at slopes (hx, hy).
 
-    Parameters
-    ----------
-    direction : np.ndarray, shape (3,)
-        Unit direction of travel of the incoming light (``z < 0``).
-    hx, hy : np.ndarray, shape (N,)
-        Surface slopes at the hit points; the upward normal is ``(-hx, -hy, 1) / |.|``.
-    ior : float
-        Index of refraction below the surface (above is 1).
-    fresnel : bool
-        Whether to compute the unpolarised dielectric transmittance (else 1).
+    **Arguments:**
 
-    Returns
-    -------
-    tx, ty, tz : np.ndarray, shape (N,)
-        The unit refracted direction (vector Snell, ``eta = 1 / ior``).
-    transmittance : np.ndarray, shape (N,)
-        ``1 - (Rs + Rp) / 2`` if `fresnel` else 1; 0 where the photon is lost.
-    ok : np.ndarray of bool, shape (N,)
-        False for total internal reflection (``sin^2 theta_t > 1``) or a refracted ray
-        that does not go down (``tz >= 0``).
+    - `direction`: `np.ndarray` of shape ``(3,)``, the unit direction of travel of the
+      incoming light (``z < 0``).
+    - `hx`, `hy`: `np.ndarray` of shape ``(N,)``, surface slopes at the hit points; the
+      upward normal is ``(-hx, -hy, 1) / |.|``.
+    - `ior`: index of refraction below the surface (a float; above is 1).
+    - `fresnel`: whether to compute the unpolarised dielectric transmittance (a bool;
+      else 1).
+
+    **Returns:** ``(tx, ty, tz, transmittance, ok)``:
+
+    - `tx`, `ty`, `tz`: `np.ndarray` of shape ``(N,)``, the unit refracted direction
+      (vector Snell, ``eta = 1 / ior``).
+    - `transmittance`: `np.ndarray` of shape ``(N,)``, ``1 - (Rs + Rp) / 2`` if `fresnel`
+      else 1; 0 where the photon is lost.
+    - `ok`: `np.ndarray` of bools, shape ``(N,)``, False for total internal reflection
+      (``sin^2 theta_t > 1``) or a refracted ray that does not go down (``tz >= 0``).
     """
     d_x, d_y, d_z = (float(c) for c in direction)
     norm = np.sqrt(1.0 + hx * hx + hy * hy)

@@ -260,27 +260,24 @@ def surface_height(
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Evaluate the Catmull-Rom height field and its analytic gradient.
 
-    Parameters
-    ----------
-    heights : array_like, shape (rows, cols)
-        Height samples in metres, indexed ``[y, x]``, sitting at the pixel centres of
-        `extent`.
-    extent : array_like, shape (4,)
-        ``(x_min, x_max, y_min, y_max)`` in metres, covering the pixel edges.
-    boundary : {"periodic", "clamp", "extrapolate"}
-        Tap indices wrap modulo the size, are clipped to ``[0, n - 1]``, or (extrapolate)
-        continue the samples by odd reflection about the edge sample.
-    x, y : array_like
-        Query coordinates in metres (broadcast together to a common shape ``S``).
-    rotation : float, default 0.0
-        Angle in radians by which the field (sample grid and extent) is rotated about the
-        centre of `extent`, counter-clockwise seen from above (+x towards +y).
+    **Arguments:**
 
-    Returns
-    -------
-    H, Hx, Hy : np.ndarray, each of shape ``S``, float64
-        The height (metres) and its slopes ``dH/dx``, ``dH/dy`` (dimensionless) along
-        the world axes.
+    - `heights`: array-like of shape ``(rows, cols)``, height samples in metres, indexed
+      ``[y, x]``, sitting at the pixel centres of `extent`.
+    - `extent`: array-like of shape ``(4,)``, ``(x_min, x_max, y_min, y_max)`` in metres,
+      covering the pixel edges.
+    - `boundary`: ``"periodic"``, ``"clamp"`` or ``"extrapolate"``: tap indices wrap
+      modulo the size, are clipped to ``[0, n - 1]``, or (extrapolate) continue the
+      samples by odd reflection about the edge sample.
+    - `x`, `y`: array-likes, query coordinates in metres (broadcast together to a common
+      shape ``S``).
+    - `rotation`: angle in radians (a float) by which the field (sample grid and extent)
+      is rotated about the centre of `extent`, counter-clockwise seen from above (+x
+      towards +y); default 0.0.
+
+    **Returns:** ``(H, Hx, Hy)``: float64 `np.ndarray` objects, each of shape ``S``: the
+    height (metres) and its slopes ``dH/dx``, ``dH/dy`` (dimensionless) along the world
+    axes.
     """
     surf = _Surface.build(heights, extent, boundary, rotation)
     try:
@@ -318,20 +315,17 @@ def intersect_surface(
     and the bracket is refined by safeguarded Newton iteration (bisection fallback) to
     machine precision.
 
-    Parameters
-    ----------
-    surf : _Surface
-    rest_depth : float
-    direction : np.ndarray, shape (3,)
-        Unit direction of travel, ``d_z < 0``.
-    cx, cy : np.ndarray, shape (N,)
-        Start points on the rest plane, metres.
+    **Arguments:**
 
-    Returns
-    -------
-    t, hx, hy : np.ndarray, shape (N,)
-        The ray parameter of the hit (the hit is ``(cx, cy, rest_depth) + t d``) and the
-        surface slopes there.
+    - `surf`: a `_Surface`.
+    - `rest_depth`: a float, the height ``z`` of the rest plane the rays start on.
+    - `direction`: `np.ndarray` of shape ``(3,)``, the unit direction of travel,
+      ``d_z < 0``.
+    - `cx`, `cy`: `np.ndarray` of shape ``(N,)``, start points on the rest plane, metres.
+
+    **Returns:** ``(t, hx, hy)``: `np.ndarray` objects of shape ``(N,)``: the ray
+    parameter of the hit (the hit is ``(cx, cy, rest_depth) + t d``) and the surface
+    slopes there.
     """
     d_x, d_y, d_z = (float(c) for c in direction)
     t_top = surf.h_hi / d_z  # z(t_top) = rest + upper bound of H: above the surface

@@ -139,23 +139,21 @@ def trace_photons(scene, xs, ys) -> tuple[np.ndarray, np.ndarray, np.ndarray, np
     its first intersection with the water surface (which may lie above the rest plane,
     i.e. behind the start point), refracts, and lands on the ground ``z = 0``.
 
-    Parameters
-    ----------
-    scene : WaterScene
-        Read by duck typing (see the module docstring).
-    xs, ys : array_like, shape (N,)
-        Start points on the rest plane ``z = rest_depth``, metres.
+    **Arguments:**
 
-    Returns
-    -------
-    ground_x, ground_y : np.ndarray, shape (C, N)
-        Landing points on the ground in metres (0 where not valid), ``C = len(scene.iors)``.
-    transmittance : np.ndarray, shape (C, N)
-        Fraction of the photon's flux that reaches the ground: the Fresnel transmittance if
-        ``scene.fresnel`` else 1, and 0 where not valid.
-    valid : np.ndarray of bool, shape (C, N)
-        False for total internal reflection or a refracted ray that does not reach the
-        ground.
+    - `scene`: a `WaterScene`, read by duck typing (see the module docstring).
+    - `xs`, `ys`: array-likes of shape ``(N,)``: start points on the rest plane
+      ``z = rest_depth``, metres.
+
+    **Returns:** ``(ground_x, ground_y, transmittance, valid)``:
+
+    - `ground_x`, `ground_y`: `np.ndarray` of shape ``(C, N)``, landing points on the
+      ground in metres (0 where not valid), ``C = len(scene.iors)``.
+    - `transmittance`: `np.ndarray` of shape ``(C, N)``, the fraction of the photon's flux
+      that reaches the ground: the Fresnel transmittance if ``scene.fresnel`` else 1, and
+      0 where not valid.
+    - `valid`: `np.ndarray` of bools, shape ``(C, N)``, False for total internal
+      reflection or a refracted ray that does not reach the ground.
     """
     w = _read_scene(scene)
     x, y = _check_points(xs, ys)
@@ -349,37 +347,31 @@ def trace_water(
     the bicubic surface, refraction, landing on ``z = 0``) and binned.
 
     For a periodic, unrotated surface and a receiver spanning whole periods, one emission
-    window the
-    size of the receiver is traced and landing points wrap into the receiver (energy is
-    conserved exactly). Otherwise the emission window is padded by `margin` on each side
-    and photons landing off the receiver are dropped.
+    window the size of the receiver is traced and landing points wrap into the receiver
+    (energy is conserved exactly). Otherwise the emission window is padded by `margin` on
+    each side and photons landing off the receiver are dropped.
 
-    Parameters
-    ----------
-    scene : WaterScene
-        Read by duck typing (see the module docstring).
-    photons_per_axis : int, default 4
-        Photons per receiver pixel along each axis (``>= 1``).
-    jitter : bool, default False
-        Jitter each photon uniformly inside its cell (``numpy.random.default_rng(seed)``).
-    seed : int, default 0
-        Seed for the jitter.
-    margin : float or None, default None
-        Padding of the emission window in metres (rounded up to whole pixels; clamp
-        boundary or receivers that are not whole periods only). ``None`` picks one from the
-        surface's slopes and doubles it while photons from its outermost pixel ring still
-        reach the receiver, up to twice the receiver's larger side (then warns).
+    **Arguments:**
 
-    memory_limit : int or None, default None
-        Bytes of photons traced at a time (``PHOTON_BYTES`` = 1024 per photon, an
-        estimate of its arrays and temporaries); ``None``: 2^18 (256 MiB) photons at a time.
-        The image does not depend on it (up to the order of float64 sums).
-    Returns
-    -------
-    np.ndarray, float64
-        Irradiance relative to the light's irradiance on a horizontal plane (flat water,
-        Fresnel off: exactly 1), shape ``(rows, cols)`` for a scalar ``scene.ior`` or
-        ``(rows, cols, C)`` for a sequence of ``C`` indices.
+    - `scene`: a `WaterScene`, read by duck typing (see the module docstring).
+    - `photons_per_axis`: photons per receiver pixel along each axis (an int, ``>= 1``);
+      default 4.
+    - `jitter`: jitter each photon uniformly inside its cell
+      (``numpy.random.default_rng(seed)``); default False.
+    - `seed`: int seed for the jitter; default 0.
+    - `margin`: padding of the emission window in metres, a float or None (rounded up to
+      whole pixels; clamp boundary or receivers that are not whole periods only); default
+      None: picks one from the surface's slopes and doubles it while photons from its
+      outermost pixel ring still reach the receiver, up to twice the receiver's larger
+      side (then warns).
+    - `memory_limit`: bytes of photons traced at a time, an int or None (``PHOTON_BYTES``
+      = 1024 per photon, an estimate of its arrays and temporaries); default None: 2^18
+      (256 MiB) photons at a time. The image does not depend on it (up to the order of
+      float64 sums).
+
+    **Returns:** a float64 `np.ndarray`: irradiance relative to the light's irradiance on a
+    horizontal plane (flat water, Fresnel off: exactly 1), shape ``(rows, cols)`` for a
+    scalar ``scene.ior`` or ``(rows, cols, C)`` for a sequence of ``C`` indices.
     """
     w = _read_scene(scene)
     per_axis = _check_int(photons_per_axis, "photons_per_axis")
@@ -456,23 +448,18 @@ def area_ratio_water(
     by the image's area. Triangles with a vertex lost to total internal reflection (or
     not reaching the ground) are dropped.
 
-    Parameters
-    ----------
-    scene : WaterScene
-        Read by duck typing (see the module docstring).
-    vertices_per_axis : int, default 2
-        Grid cells per receiver pixel along each axis (``>= 1``).
-    samples_per_triangle : int, default 16
-        Sample points per triangle, a perfect square ``m**2`` (the centroids of the
-        triangle's regular subdivision into ``m**2`` sub-triangles).
-    margin : float or None, default None
-        As in `trace_water`.
+    **Arguments:**
 
-    Returns
-    -------
-    np.ndarray, float64
-        Relative irradiance, shape ``(rows, cols)`` or ``(rows, cols, C)`` as in
-        `trace_water`.
+    - `scene`: a `WaterScene`, read by duck typing (see the module docstring).
+    - `vertices_per_axis`: grid cells per receiver pixel along each axis (an int,
+      ``>= 1``); default 2.
+    - `samples_per_triangle`: sample points per triangle, an int, a perfect square
+      ``m**2`` (the centroids of the triangle's regular subdivision into ``m**2``
+      sub-triangles); default 16.
+    - `margin`: a float or None, as in `trace_water`; default None.
+
+    **Returns:** a float64 `np.ndarray`: relative irradiance, shape ``(rows, cols)`` or
+    ``(rows, cols, C)`` as in `trace_water`.
     """
     w = _read_scene(scene)
     per_axis = _check_int(vertices_per_axis, "vertices_per_axis")

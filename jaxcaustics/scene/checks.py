@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import functools
 from collections.abc import Callable
+from typing import Any, Protocol, cast
 
 import equinox as eqx
 import jax
@@ -241,7 +242,16 @@ def check_scene_values(scene):
     return scene
 
 
-def checks_scene_values(method: Callable) -> Callable:
+class SceneMethod(Protocol):
+    """A method decorated by `checks_scene_values`: the checked call, and the method
+    itself as ``.unchecked``."""
+
+    unchecked: Callable[..., Any]
+
+    def __call__(self, *args: Any, **kwargs: Any) -> Any: ...
+
+
+def checks_scene_values(method: Callable) -> SceneMethod:
     """Decorate a method ``method(scene, ...)``: the public function checks the scene's
     values first (`check_scene_values`). ``method.unchecked`` skips them, for the
     library's own solvers: a trial step of an optimisation may leave the physical
@@ -252,4 +262,4 @@ def checks_scene_values(method: Callable) -> Callable:
         return method(check_scene_values(scene), *args, **kwargs)
 
     checked.unchecked = method  # type: ignore[attr-defined]
-    return checked
+    return cast(SceneMethod, checked)

@@ -20,7 +20,6 @@ from __future__ import annotations
 
 import dataclasses
 import math
-import warnings
 from collections.abc import Sequence
 from typing import Any
 
@@ -35,7 +34,6 @@ from .._checks import (
     check_number,
     check_real_array,
     check_shape,
-    renamed_keyword,
 )
 from .outline import check_outline
 from .screen_pose import ScreenPose
@@ -185,7 +183,25 @@ class PlaneReceiver(eqx.Module):
 
 @dataclasses.dataclass(frozen=True)
 class Effects:
-    """What a scene will simulate (static configuration; see `WaterScene.effects`)."""
+    """What a scene will simulate (static configuration; see `WaterScene.effects`): each
+    scene's `effects` property builds one, and the methods read it to tell whether they
+    support the scene.
+
+    **Arguments:**
+
+    - `refraction`: light is refracted at the surface (water, glass; ``False`` for a
+      mirror mesh).
+    - `reflection`: light is reflected (a mirror mesh).
+    - `fresnel`: photons are weighted by the Fresnel transmittance of each refraction
+      (the scene's `fresnel`; a mirror's reflectance is taken as 1).
+    - `total_internal_reflection`: total internal reflection can happen and is traced
+      (water of index below 1, the bottom face of a lens, a glass mesh or ellipsoid).
+    - `dispersion_channels`: the number of indices of refraction, one image channel each.
+    - `occlusion`: the scene has occluders that stop light (a photon path that meets one
+      is stopped).
+    - `interfaces`: the most interfaces a photon path crosses or reflects from (water 1,
+      a lens 2, a mesh or an ellipsoid its scene's `interfaces`).
+    """
 
     refraction: bool
     reflection: bool
@@ -419,7 +435,6 @@ class LensScene(eqx.Module):
       receiver's extent is then in the screen's own ``(s, t)`` frame, and
       `screen_distance` only places the bottom face at ``z = screen_distance``.
       ``None`` (default): the screen is the ground ``z = 0``.
-    - `throw`: the old name of `screen_distance` (a `DeprecationWarning`).
 
     Images are irradiance relative to the irradiance the light gives a horizontal plane
     (directional light), or in W/m^2 for a point light of the given intensity.
@@ -447,16 +462,12 @@ class LensScene(eqx.Module):
         fresnel: bool = False,
         outline: str | Sequence = "rectangle",
         screen_pose=None,
-        throw=None,
     ):
         if not isinstance(surface, HeightField):
             raise ValueError(f"`surface` must be a HeightField, got {type(surface).__name__}")
         check_light(light)
         if not isinstance(receiver, PlaneReceiver):
             raise ValueError(f"`receiver` must be a PlaneReceiver, got {type(receiver).__name__}")
-        screen_distance = renamed_keyword(
-            "LensScene", "throw", "screen_distance", throw, screen_distance
-        )
         screen_distance = 0.5 if screen_distance is None else screen_distance
         self.surface = surface
         self.light = light
@@ -487,15 +498,6 @@ class LensScene(eqx.Module):
     def top(self) -> Array:
         """Height of the top surface's rest plane above the screen, metres."""
         return self.screen_distance + self.thickness
-
-    @property
-    def throw(self) -> Array:
-        """Deprecated name of `screen_distance` (in jaxcaustics, as in Optimistix, `throw`
-        means raising on failure)."""
-        warnings.warn(
-            "LensScene.throw is deprecated: read `screen_distance`", DeprecationWarning, 2
-        )
-        return self.screen_distance
 
     @property
     def effects(self) -> Effects:

@@ -10,6 +10,7 @@ reverse pass of the two-pass method within a small factor of the forward pass.
 from __future__ import annotations
 
 import functools
+from typing import TypeVar
 
 import equinox as eqx
 import jax
@@ -26,8 +27,12 @@ MAX_HIT_ITERATIONS = 100
 
 PAD_LOW, PAD_HIGH = 3, 4  # enough for the taps of any coordinate after wrap/clamp
 
+_ArrayT = TypeVar("_ArrayT", Array, np.ndarray)  # `catmull_rom` of either kind
 
-def catmull_rom(t: Array) -> tuple[tuple[Array, ...], tuple[Array, ...], tuple[Array, ...]]:
+
+def catmull_rom(
+    t: _ArrayT,
+) -> tuple[tuple[_ArrayT, ...], tuple[_ArrayT, ...], tuple[_ArrayT, ...]]:
     """Weights of the taps ``-1, 0, 1, 2``, their first and second derivatives."""
     t2, t3 = t * t, t * t * t
     w = (

@@ -204,48 +204,50 @@ def wave_heights(
     vmappable over `time`; everything else fixes the wave set and must be concrete
     (``shape``, ``num_waves``, ``seed``, ... are static; close over `extent`).
 
-    Parameters
-    ----------
-    shape : (int, int)
-        ``(rows, cols)`` of the output.
-    extent : (x_min, x_max, y_min, y_max)
-        Metres, covering the pixel edges; also the period of the surface.
-    time : float or scalar array
-        Seconds. A scalar: use `jax.vmap` for several times.
-    amplitude : float
-        RMS height, metres (>= 0).
-    num_waves : int
-        Number of waves (>= 1).
-    wavelength_range : (float, float), optional
-        ``(min, max)`` wavelengths in metres. Default ``(min(Lx, Ly) / 8, max(Lx, Ly))``;
-        on a square extent, 32 pixels a side then give at least 4 samples per wavelength.
-    depth : float
-        Water depth for the dispersion relation, metres (> 0; ``inf`` for deep water).
-        Match the scene's ``rest_depth``.
-    direction : float
-        Mean direction of travel, radians from +x towards +y.
-    direction_spread : float
-        Largest angle between a wave's direction of travel and `direction`, radians, in
-        ``(0, pi]``: small for a swell, ``pi`` for waves in every direction.
-    seed : int
-        Non-negative seed for the wave set.
+    **Arguments:**
 
-    Returns
-    -------
-    jax.Array, shape (rows, cols)
-        Heights in metres about the rest level (zero mean), indexed ``[y, x]``; float32,
-        or float64 when x64 is enabled.
+    - `shape`: ``(rows, cols)`` of the output, two ints.
+    - `extent`: ``(x_min, x_max, y_min, y_max)``, metres, covering the pixel edges; also
+      the period of the surface.
+    - `time`: seconds, a float or scalar array; default 0.0. A scalar: use `jax.vmap` for
+      several times.
+    - `amplitude`: RMS height, metres (a float, >= 0); default 0.02.
+    - `num_waves`: number of waves (an int, >= 1); default 24.
+    - `wavelength_range`: optional ``(min, max)`` wavelengths in metres, two floats.
+      Default ``(min(Lx, Ly) / 8, max(Lx, Ly))``; on a square extent, 32 pixels a side then
+      give at least 4 samples per wavelength.
+    - `depth`: water depth for the dispersion relation, metres (a float, > 0; ``inf`` for
+      deep water); default 1.0. Match the scene's ``rest_depth``.
+    - `direction`: mean direction of travel, radians from +x towards +y (a float); default
+      0.0.
+    - `direction_spread`: largest angle between a wave's direction of travel and
+      `direction`, radians (a float), in ``(0, pi]``: small for a swell, ``pi`` for waves
+      in every direction; default ``pi / 3``.
+    - `seed`: non-negative int seed for the wave set; default 0.
 
-    Raises
-    ------
-    ValueError
-        For a bad argument (named in the message), or when fewer than `num_waves`
-        periodic wave vectors fit `wavelength_range` and `direction_spread`.
+    **Returns:** a `jax.Array` of shape ``(rows, cols)``: heights in metres about the rest
+    level (zero mean), indexed ``[y, x]``; float32, or float64 when x64 is enabled.
 
-    Warns
-    -----
-    UserWarning
-        When a wave is at or above the grid's Nyquist frequency (it aliases).
+    **Raises:** `ValueError` for a bad argument (named in the message), or when fewer than
+    `num_waves` periodic wave vectors fit `wavelength_range` and `direction_spread`.
+
+    **Warns:** `UserWarning` when a wave is at or above the grid's Nyquist frequency (it
+    aliases).
+
+    ```pycon
+    >>> extent = (0.0, 2.0, 0.0, 1.5)  # metres
+    >>> h = jc.wave_heights((150, 200), extent, amplitude=0.002, depth=0.5)
+    >>> h.shape
+    (150, 200)
+    >>> round(float(h.std()), 4), abs(float(h.mean())) < 1e-6  # RMS 2 mm, zero mean
+    (0.002, True)
+    >>> frames = jax.vmap(lambda t: jc.wave_heights((32, 32), extent, time=t))(
+    ...     jnp.linspace(0.0, 1.0, 5)
+    ... )
+    >>> frames.shape  # five moments of the same sea
+    (5, 32, 32)
+
+    ```
     """
     rows, cols = check_shape(shape, "shape")
     ext = _concrete_extent(extent)
@@ -343,24 +345,18 @@ def gaussian_bump(
 ) -> Float[Array, "rows cols"]:
     """A Gaussian bump ``amplitude * exp(-|p - center|^2 / (2 sigma^2))``.
 
-    Parameters
-    ----------
-    shape : (int, int)
-        ``(rows, cols)`` of the output.
-    extent : (x_min, x_max, y_min, y_max)
-        Metres, covering the pixel edges.
-    center : (float, float), optional
-        ``(x, y)`` of the peak, metres; default the centre of the extent.
-    sigma : float
-        Standard deviation, metres (> 0).
-    amplitude : float
-        Peak height, metres (negative for a dip).
+    **Arguments:**
 
-    Returns
-    -------
-    jax.Array, shape (rows, cols)
-        Heights in metres at pixel centres, indexed ``[y, x]``. Differentiable with
-        respect to `center`, `sigma`, `amplitude` and `extent`.
+    - `shape`: ``(rows, cols)`` of the output, two ints.
+    - `extent`: ``(x_min, x_max, y_min, y_max)``, metres, covering the pixel edges.
+    - `center`: optional ``(x, y)`` of the peak, two floats, metres; default the centre of
+      the extent.
+    - `sigma`: standard deviation, metres (a float, > 0).
+    - `amplitude`: peak height, metres (a float; negative for a dip).
+
+    **Returns:** a `jax.Array` of shape ``(rows, cols)``: heights in metres at pixel
+    centres, indexed ``[y, x]``. Differentiable with respect to `center`, `sigma`,
+    `amplitude` and `extent`.
     """
     shape = check_shape(shape, "shape")
     ext = _extent_array(extent)
@@ -403,20 +399,16 @@ def sine_sum(
     ``(x, y)`` (absolute coordinates, metres), ``Lx, Ly`` the size of the extent: the
     surface tiles the plane with period ``extent``.
 
-    Parameters
-    ----------
-    shape : (int, int)
-        ``(rows, cols)`` of the output.
-    extent : (x_min, x_max, y_min, y_max)
-        Metres, covering the pixel edges; the period of the surface. Concrete (static).
-    terms : sequence of (kx, ky, amplitude, phase)
-        `kx`, `ky`: integer numbers of periods across the extent in x and y (static);
-        `amplitude`: metres; `phase`: radians (these two may be traced).
+    **Arguments:**
 
-    Returns
-    -------
-    jax.Array, shape (rows, cols)
-        Heights in metres, indexed ``[y, x]``.
+    - `shape`: ``(rows, cols)`` of the output (two ints).
+    - `extent`: ``(x_min, x_max, y_min, y_max)``, metres, covering the pixel edges; the
+      period of the surface. Concrete (static).
+    - `terms`: a sequence of ``(kx, ky, amplitude, phase)``, at least one: `kx`, `ky`:
+      integer numbers of periods across the extent in x and y (static); `amplitude`:
+      metres; `phase`: radians (these two may be traced).
+
+    **Returns:** the heights, metres, a ``(rows, cols)`` array indexed ``[y, x]``.
     """
     rows, cols = check_shape(shape, "shape")
     ext = _concrete_extent(extent)

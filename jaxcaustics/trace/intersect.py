@@ -18,16 +18,16 @@ The search (`nearest_hits`, in batches of `batch_size` rays) is exact either way
 
 The tree is built in JAX (sorts along the tree's levels, ``O(F log^2 F)``), not on the
 host: a render under `jit`, `grad` or `vmap` sees the vertices as tracers, and the tree
-must follow them (a design step moves the vertices). Building it costs a few sorts of
-``F`` numbers per trace; `trace_mesh_rays` builds it once and passes it to every search
-of the trace. (trimesh's ray tests run on the host in NumPy/Embree and cannot run under
-`jit`, hence this hand-written tree.)
+must follow them (a design step moves the vertices); `trace_mesh_rays` builds it once and
+passes it to every search of the trace. See the design notes (``docs/design-notes.md``).
 """
 
 from __future__ import annotations
 
+import contextlib
 import functools
 import math
+from collections.abc import Iterator
 
 import equinox as eqx
 import jax
@@ -44,6 +44,23 @@ On the 320-face blob of the accuracy report, the first search of 9409 photons to
 2.5 ms by brute force and 7.3 ms in the tree; its whole trace (three searches) 7.2 ms by
 brute force and 25-54 ms in the tree (64 to 256 lanes; 1.1 against 3.7-6.6 ms at 1089
 photons)."""
+
+
+@contextlib.contextmanager
+def brute_force_limit(faces: int) -> Iterator[None]:
+    """Inside the block, search meshes of at most `faces` triangles by brute force
+    (`BRUTE_FORCE_FACES` is set to `faces`, and restored on leaving): to time or check the
+    brute-force search against the tree on one mesh. The search is chosen while a
+    function is traced: one compiled before the block keeps the search it was compiled
+    with."""
+    global BRUTE_FORCE_FACES
+    saved = BRUTE_FORCE_FACES
+    BRUTE_FORCE_FACES = int(faces)
+    try:
+        yield
+    finally:
+        BRUTE_FORCE_FACES = saved
+
 
 MIN_LANES = 256
 RAYS_PER_LANE = 64
@@ -80,7 +97,7 @@ def _cross(a: Array, b: Array) -> Array:
     )
 
 
-def _moller_trumbore_parts(o, d, v0, e1, e2):
+def _moller_trumbore_parts(o, d, v0, e1, e2) -> tuple[Array, Array, Array, Array]:
     """`moller_trumbore` on coordinates: each argument a tuple ``(x, y, z)`` of arrays
     that broadcast (a triangle as its corner `v0` and edges ``e1 = v1 - v0``,
     ``e2 = v2 - v0``). Elementwise arithmetic only, which XLA fuses into one loop (the

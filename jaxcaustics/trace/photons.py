@@ -391,7 +391,7 @@ def trace_mesh_rays(
     density: Float[Array, " P"],
     batch_size: int = 4096,
     terminal=None,
-) -> list[tuple[Array, Array, Array, Array]]:
+) -> list[tuple[Array, Array, Array, Array, Array]]:
     """Trace rays from the light exactly through a `MeshScene` to the screen.
 
     Rays start at `o0` (before the generator) going along unit `d0`, carrying `density`

@@ -88,8 +88,8 @@ def raster_window(scene: MeshScene, view: LightView, resolution: int) -> int:
     face's footprint in the light's view (needs concrete vertices)."""
     tri = np.asarray(scene.generator.vertices)[np.asarray(scene.generator.faces)]
     u, v = view.project(jnp.asarray(tri))
-    x, y = view.to_texels(u, v, (resolution, resolution))
-    x, y = np.asarray(x), np.asarray(y)
+    tx, ty = view.to_texels(u, v, (resolution, resolution))
+    x, y = np.asarray(tx), np.asarray(ty)
     span = max(
         np.max(np.ceil(x.max(1)) - np.floor(x.min(1))),
         np.max(np.ceil(y.max(1)) - np.floor(y.min(1))),
@@ -343,7 +343,7 @@ def shade_photons(
 
 def intersection_errors(
     scene: MeshScene, buffers: GeometryBuffers, photons: int, iterations=(0, 1, 2, 4, 8, 16, 32)
-) -> dict[int, tuple[float, float, float, float]]:
+) -> dict[int, tuple[float, ...]]:
     """How far the image-space estimate (`ray_geo`) lands from the exact intersection,
     per iteration count, for photons on a ``photons x photons`` grid over the view that
     hit the generator (a refractor): the refracted ray's exit through the back surface
@@ -370,7 +370,7 @@ def intersection_errors(
     t_exact, _ = nearest_hits(point, inside, triangles, eps)
     exit_exact = point + t_exact[:, None] * inside
     found = np.asarray(jnp.isfinite(t_exact))
-    result = {}
+    result: dict[int, tuple[float, ...]] = {}
     for k in iterations:
         exit_point, landed, plane, down = _estimate(view, buffers, point, inside, ior, k)
         back_error = np.linalg.norm(np.asarray(exit_point - exit_exact), axis=-1)[found]

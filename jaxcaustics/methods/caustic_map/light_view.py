@@ -91,12 +91,12 @@ class LightView(eqx.Module):
         cos_a = jnp.abs(w @ self.axis)
         return jnp.abs(jnp.sum(normals * w, axis=-1)) / (r * r * cos_a**3)
 
-    def texel_area(self, shape: tuple[int, int]) -> Array:
+    def texel_area(self, shape: tuple[int, ...]) -> Array:
         """View area of one texel of a ``shape`` image over the window."""
         u0, u1, v0, v1 = (self.window[k] for k in range(4))
         return (u1 - u0) / shape[1] * (v1 - v0) / shape[0]
 
-    def texel_centres(self, shape: tuple[int, int]) -> tuple[Array, Array]:
+    def texel_centres(self, shape: tuple[int, int]) -> list[Array]:
         """``(u, v)`` of the texel centres of a ``shape`` image, each ``(rows, cols)``."""
         rows, cols = shape
         u0, u1, v0, v1 = (self.window[k] for k in range(4))
@@ -105,7 +105,7 @@ class LightView(eqx.Module):
         v = v0 + (jnp.arange(rows, dtype=dtype) + 0.5) * (v1 - v0) / rows
         return jnp.meshgrid(u, v)
 
-    def to_texels(self, u: Array, v: Array, shape: tuple[int, int]) -> tuple[Array, Array]:
+    def to_texels(self, u: Array, v: Array, shape: tuple[int, ...]) -> tuple[Array, Array]:
         """Continuous texel coordinates ``(x, y)`` (columns, rows; a texel centre is at
         ``(j + 0.5, i + 0.5)``) of view points in a ``shape`` image over the window."""
         rows, cols = shape

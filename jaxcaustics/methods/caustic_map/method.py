@@ -29,7 +29,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from typing import ClassVar, Literal
+from typing import Any, ClassVar, Literal
 
 import equinox as eqx
 import jax
@@ -303,6 +303,7 @@ def _dense_map(
 class _CausticMapMethod(Method):
     """What both caustic maps support: refracting meshes without occluders."""
 
+    photons: eqx.AbstractVar[int]  # each subclass's first knob
     scene_types: ClassVar[tuple[type, ...]] = (MeshScene,)
     resolution_knobs: ClassVar[tuple[str, ...]] = ("photons",)
 
@@ -331,7 +332,40 @@ class _CausticMapMethod(Method):
 class CausticsMapping(_CausticMapMethod):
     """Shah et al.'s caustics mapping (dense photon splats) for refracting meshes:
     ``CausticsMapping(photons=...)(scene)`` or ``render(scene, CausticsMapping(...))``.
-    The knobs (and their defaults) are those of `caustics_mapping`."""
+
+    **Arguments:**
+
+    - `photons`: ``N``: the refractive vertex grid, ``N x N`` photons at the cell centres
+      of the light's view (`LightView`: it covers the receiver and the generator);
+      default 512.
+    - `map_resolution`: ``R``: the caustic map is ``R x R`` texels over the same view;
+      default twice the receiver's larger side.
+    - `sigma`: the splat's standard deviation in map texels (the splat radius);
+      ``"auto"`` (the default): ``max(0.5, R / N)``, about one photon spacing.
+    - `gbuffer_resolution`: texels per side of the geometry buffers (refractor front and
+      back, receiver positions texture); default ``min(N, 1024)`` (Shah et al.: one
+      texel per photon; above 1024 photons are interpolated between texels).
+    - `intersection`: ``"image_space"`` (the default; the paper's estimate: `ray_geo` on
+      the positions textures, two interfaces) or ``"exact"`` (ray tracing through the
+      mesh and onto the plane; `gbuffer_resolution` unused).
+    - `iterations`: steps of the image-space intersection estimate. The paper uses 1;
+      the default 4 brings the median landing error on a glass ball from 2.5% to 0.1%
+      of its radius (`jaxcaustics.methods.caustic_map.gbuffer.intersection_errors`; near
+      the rim the update converges slowly whatever the count), for one texture lookup
+      per step.
+    - `memory_limit`: bytes of photon buffer per batch (`photon_bytes` per photon);
+      photons beyond it are shaded and splatted in further batches (a loop: each batch
+      makes its own photons from its index, so the ``N x N`` grid never exists and the
+      compiled graph does not grow with ``N``). Default 1 GiB. Refused before anything
+      is compiled, with the estimate: geometry buffers and caustic map over the limit
+      (``64 G^2 + 16 C R^2`` numbers), one photon over it (a huge `sigma`), over 2^31
+      photons (``N`` above 46340) or over 2^20 batches (`jaxcaustics.reconstruct.raster`'s
+      `MAX_PHOTONS`, `MAX_BATCHES`).
+    - `devices`: ``None`` (the default): the default device only. An int ``n`` (the first
+      ``n`` of `jax.devices()`) or a list of devices: the batches are split across them
+      (`jax.shard_map` over `jaxcaustics.devices.device_mesh(devices)`, at least one
+      batch per device) and the partial maps summed (``psum``); same map to rounding.
+    """
 
     photons: int = 512
     map_resolution: int | None = None
@@ -363,37 +397,8 @@ def caustics_mapping(
 ) -> CausticMapResult:
     """Caustics of a mesh scene by Shah et al.'s caustics mapping (dense photon splats).
 
-    **Arguments:**
-
-    - `scene`: a `MeshScene` without occluders.
-    - `photons`: ``N``: the refractive vertex grid, ``N x N`` photons at the cell centres
-      of the light's view (`LightView`: it covers the receiver and the generator).
-    - `map_resolution`: ``R``: the caustic map is ``R x R`` texels over the same view;
-      default twice the receiver's larger side.
-    - `sigma`: the splat's standard deviation in map texels (the splat radius);
-      ``"auto"``: ``max(0.5, R / N)``, about one photon spacing.
-    - `gbuffer_resolution`: texels per side of the geometry buffers (refractor front and
-      back, receiver positions texture); default ``min(N, 1024)`` (Shah et al.: one
-      texel per photon; above 1024 photons are interpolated between texels).
-    - `intersection`: ``"image_space"`` (the paper's estimate: `ray_geo` on the
-      positions textures, two interfaces) or ``"exact"`` (ray tracing through the mesh
-      and onto the plane; `gbuffer_resolution` unused).
-    - `iterations`: steps of the image-space intersection estimate. The paper uses 1;
-      the default 4 brings the median landing error on a glass ball from 2.5% to 0.1%
-      of its radius (`jaxcaustics.methods.caustic_map.gbuffer.intersection_errors`; near the rim the
-      update converges slowly whatever the count), for one texture lookup per step.
-    - `memory_limit`: bytes of photon buffer per batch (`photon_bytes` per photon);
-      photons beyond it are shaded and splatted in further batches (a loop: each batch
-      makes its own photons from its index, so the ``N x N`` grid never exists and the
-      compiled graph does not grow with ``N``). Default 1 GiB. Refused before anything
-      is compiled, with the estimate: geometry buffers and caustic map over the limit
-      (``64 G^2 + 16 C R^2`` numbers), one photon over it (a huge `sigma`), over 2^31
-      photons (``N`` above 46340) or over 2^20 batches (`jaxcaustics.reconstruct.raster`'s
-      `MAX_PHOTONS`, `MAX_BATCHES`).
-    - `devices`: ``None``: the default device only. An int ``n`` (the first ``n`` of
-      `jax.devices()`) or a list of devices: the batches are split across them
-      (`jax.shard_map` over `jaxcaustics.devices.device_mesh(devices)`, at least one
-      batch per device) and the partial maps summed (``psum``); same map to rounding.
+    The function form of `CausticsMapping`: `scene` (a `MeshScene` without occluders) and
+    the same knobs as keywords, described there.
 
     **Returns:** a `CausticMapResult`. Jit-compiled; differentiable with respect to the
     generator's vertices (and the light), through the geometry buffers and the photons.
@@ -559,7 +564,7 @@ def _traverse_on_host(scene, buffers, cfg: _AdaptiveConfig, cap: int):
     cmap = jnp.zeros((channels, rows, cols), dtype)
     total = jnp.zeros((channels,), dtype)
     levels = cfg.max_level + 1
-    stats = {
+    stats: dict[str, Any] = {
         "generated_per_level": [0] * levels,
         "splatted_per_level": [0] * levels,
         "refined_per_level": [0] * levels,
@@ -618,7 +623,7 @@ def _traverse_in_jit(scene, buffers, cfg: _AdaptiveConfig, capacity: int, batch:
         raise ValueError(f"`capacity` must hold the first level's {len(start)} clusters")
     clusters = jnp.zeros((capacity, 2), jnp.int32).at[: len(start)].set(jnp.asarray(start))
     active = jnp.arange(capacity) < len(start)
-    counts = [[], [], []]
+    counts: list[list[Array]] = [[], [], []]
     overflow = jnp.zeros((), bool)
 
     @jax.checkpoint
@@ -651,7 +656,62 @@ def _traverse_in_jit(scene, buffers, cfg: _AdaptiveConfig, capacity: int, batch:
 class AdaptiveCausticMap(_CausticMapMethod):
     """Wyman & Nichols' adaptive caustic maps for refracting meshes:
     ``AdaptiveCausticMap(photons=...)(scene)`` or ``render(scene, AdaptiveCausticMap(...))``.
-    The knobs (and their defaults) are those of `adaptive_caustic_map`."""
+
+    Photons start on a ``base x base`` grid over the light's view and are grouped in
+    2 x 2 clusters. A cluster whose photons all miss the generator is discarded; the
+    others are refined (each photon becomes a cluster of four on the grid twice as fine)
+    until a stopping metric says stop:
+
+    - ``"traversal"`` (maximal traversal level): at the level of the equivalent dense
+      grid, ``photons x photons``, all photons of the cluster are splatted.
+    - ``"error"`` (maximal caustic-map error): from the level of a ``check_from`` grid
+      on, a cluster whose four photons all land in one texel of the caustic map is
+      splatted as one photon carrying their flux; the rest go on down to the traversal
+      level, where they are all splatted.
+
+    The traversal runs level by level (breadth first) in fixed-size buffers with masks.
+    By default the tree is decided on the host between jit-compiled steps (one per
+    buffer size, each sized to the level's clusters): when a level's photons would take
+    more than `memory_limit` bytes (`photon_bytes` each), its clusters are split into
+    batches, each refined and splatted to the end before the next (depth first). With
+    `capacity` (clusters per level) the whole traversal runs under one `jit`: every
+    level is a buffer of `capacity` clusters shaded in batches under the memory limit,
+    and the refined clusters' children are compacted into the next level's buffer
+    (``jnp.nonzero`` with a fixed size; a level that would overflow raises, or under an
+    outer `jit` sets ``stats["overflow"]``). Same image either way.
+
+    **Arguments:**
+
+    - `photons`: the equivalent dense grid (default 2048); ``photons / base`` must be a
+      power of two.
+    - `base`: the coarse grid (the paper's 64, the default), even.
+    - `metric`, `check_from`: as above (defaults ``"traversal"`` and 512: the paper
+      checks convergence from 512^2 on).
+    - `discard`: when a cluster "misses the refractor": ``"samples"`` (the paper's test:
+      its four photons all miss; a sliver of the object between coarse photons is lost
+      for good) or ``"footprint"`` (the default; also none of the geometry-buffer texels
+      under the cluster's area sees the object: nothing is lost that the dense grid would
+      find).
+    - `gbuffer_resolution`: default ``min(photons, 1024)``, as `CausticsMapping`, so
+      that both give the same image at the same `photons` (the paper samples the
+      buffers at a quarter of the caustic map's resolution: coarser buffers smooth the
+      object's normals, which costs accuracy on thin objects: on the benchmark's torus
+      at 1024^2 photons 0.131 with 256^2 buffers against 0.116 with 1024^2).
+    - `map_resolution`, `sigma`, `intersection`, `iterations`: as for `CausticsMapping`
+      (same defaults).
+    - `memory_limit`: bytes of photon buffer per batch (default 1 GiB, `photon_bytes`
+      per photon), as for `CausticsMapping`; a level over it is split into batches as
+      above.
+    - `capacity`: clusters per level for the all-jit traversal (``None``, the default:
+      host-driven), from the first level's ``(base / 2)^2`` to the finest level's
+      ``(photons / 2)^2``.
+
+    Checked before anything is compiled, as `CausticsMapping` (memory, at most 2^31
+    photons in the equivalent grid, at most 2^20 batches of `memory_limit` at the
+    worst, every cluster refined; one cluster of four photons must fit). `check_from`
+    is unused with ``metric="traversal"`` but accepted (the benchmarks pass one value
+    to both metrics).
+    """
 
     photons: int = 2048
     base: int = 64
@@ -700,52 +760,8 @@ def adaptive_caustic_map(
 ) -> CausticMapResult:
     """Caustics of a mesh scene by Wyman & Nichols' adaptive caustic maps.
 
-    Photons start on a ``base x base`` grid over the light's view and are grouped in
-    2 x 2 clusters. A cluster whose photons all miss the generator is discarded; the
-    others are refined (each photon becomes a cluster of four on the grid twice as fine)
-    until a stopping metric says stop:
-
-    - ``"traversal"`` (maximal traversal level): at the level of the equivalent dense
-      grid, ``photons x photons``, all photons of the cluster are splatted.
-    - ``"error"`` (maximal caustic-map error): from the level of a ``check_from`` grid
-      on, a cluster whose four photons all land in one texel of the caustic map is
-      splatted as one photon carrying their flux; the rest go on down to the traversal
-      level, where they are all splatted.
-
-    The traversal runs level by level (breadth first) in fixed-size buffers with masks.
-    By default the tree is decided on the host between jit-compiled steps (one per
-    buffer size, each sized to the level's clusters): when a level's photons would take
-    more than `memory_limit` bytes (`photon_bytes` each), its clusters are split into
-    batches, each refined and splatted to the end before the next (depth first). With
-    `capacity` (clusters per level) the whole traversal runs under one `jit`: every
-    level is a buffer of `capacity` clusters shaded in batches under the memory limit,
-    and the refined clusters' children are compacted into the next level's buffer
-    (``jnp.nonzero`` with a fixed size; a level that would overflow raises, or under an
-    outer `jit` sets ``stats["overflow"]``). Same image either way.
-
-    **Arguments** (see `caustics_mapping` for the shared ones):
-
-    - `photons`: the equivalent dense grid; ``photons / base`` must be a power of two.
-    - `base`: the coarse grid (the paper's 64), even.
-    - `metric`, `check_from`: as above (the paper checks convergence from 512^2 on).
-    - `discard`: when a cluster "misses the refractor": ``"samples"`` (the paper's test:
-      its four photons all miss; a sliver of the object between coarse photons is lost
-      for good) or ``"footprint"`` (also none of the geometry-buffer texels under the
-      cluster's area sees the object: nothing is lost that the dense grid would find).
-    - `gbuffer_resolution`: default ``min(photons, 1024)``, as `caustics_mapping`, so
-      that both give the same image at the same `photons` (the paper samples the
-      buffers at a quarter of the caustic map's resolution: coarser buffers smooth the
-      object's normals, which costs accuracy on thin objects: on the benchmark's torus
-      at 1024^2 photons 0.131 with 256^2 buffers against 0.116 with 1024^2).
-
-    - `capacity`: clusters per level for the all-jit traversal (``None``: host-driven),
-      from the first level's ``(base / 2)^2`` to the finest level's ``(photons / 2)^2``.
-
-    Checked before anything is compiled, as `caustics_mapping` (memory, at most 2^31
-    photons in the equivalent grid, at most 2^20 batches of `memory_limit` at the
-    worst, every cluster refined; one cluster of four photons must fit). `check_from`
-    is unused with ``metric="traversal"`` but accepted (the benchmarks pass one value
-    to both metrics).
+    The function form of `AdaptiveCausticMap`: `scene` (a `MeshScene` without occluders)
+    and the same knobs as keywords, described there.
 
     **Returns:** a `CausticMapResult` with per-level counts in `stats`. Differentiable
     with respect to the scene through the photons' landing points (the traversal's
@@ -902,8 +918,19 @@ def camera_image(
     `albedo`: radiance ``albedo / pi (E_direct + E_caustic)``, ``E_direct`` the light's
     irradiance where the shadow map (`result.shadow_map`) does not see the generator,
     ``E_caustic`` the caustic map projected as in `project_caustic_map`. The generator
-    itself is not drawn (only its shadow and caustic). Same units as the images;
-    **returns** ``(rows, cols)`` or ``(rows, cols, channels)``."""
+    itself is not drawn (only its shadow and caustic).
+
+    **Arguments:**
+
+    - `scene`: the `MeshScene` that was rendered.
+    - `result`: its caustic map, a `CausticMapResult`
+      (``CausticsMapping(...).trace(scene)`` or ``AdaptiveCausticMap(...).trace(scene)``).
+    - `camera`: a `PinholeCamera` (its `shape` is the image's).
+    - `albedo`: the receiver's Lambertian albedo, in ``[0, 1]`` (default 0.8).
+
+    **Returns:** the radiance, in the images' units, ``(rows, cols)`` or ``(rows, cols,
+    channels)``.
+    """
     for name, value, kind in (
         ("scene", scene, MeshScene),
         ("result", result, CausticMapResult),

@@ -770,7 +770,8 @@ def fit_focus_law(
     if initial is None:
         x0 = _initial_focus_law(origin, direction, energy, axis_point, axis_direction, size)
     else:
-        x0 = _pack(*(jnp.asarray(v, origin.dtype) for v in initial), size)
+        alpha0, beta0, ell0 = (jnp.asarray(v, origin.dtype) for v in initial)
+        x0 = _pack(alpha0, beta0, ell0, size)
     x, _ = _fit_x(origin, direction, energy, axis_point, axis_direction, size, x0, steps, tolerance)
     alpha, beta, ell = _law(x, size)
     error = focus_law_error(
@@ -1081,7 +1082,8 @@ def fit_spot_lights(
     )
     memory_limit = check_memory_limit(memory_limit)
     origin = rays[0] if isinstance(rays, tuple | list) and rays else getattr(rays, "origin", None)
-    if len(getattr(origin, "shape", ())) == 2:  # before the rays are converted (work too)
+    # before the rays are converted (work too)
+    if origin is not None and len(getattr(origin, "shape", ())) == 2:
         kind = np.dtype(origin.dtype).kind
         _check_fit_memory(origin.shape[0], origin.dtype if kind == "f" else float, k, memory_limit)
     rays = as_ray_set(rays)

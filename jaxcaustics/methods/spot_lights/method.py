@@ -144,9 +144,38 @@ def _on_ellipsoid(coords: np.ndarray, radii: np.ndarray) -> str | None:
 class SpotLightMethod(Method):
     """Liu et al.'s caustic spot lights for glass ellipsoids and sphere-like meshes under
     parallel light: ``SpotLightMethod(rays_per_axis=...)(scene)`` or ``render(scene,
-    SpotLightMethod(...))``. The knobs (and their defaults) are those of `spot_lights`;
-    `fit` holds the keywords passed on to `fit_spot_lights` (`render` and `from_knobs`
-    take them as knobs of their own: ``render(scene, "spot_lights", max_lights=8)``)."""
+    SpotLightMethod(...))``.
+
+    **Arguments:**
+
+    - `rays_per_axis`: rays along each side of the traced grid (default 256; the paper
+      traces 1280^2); the accuracy knob of the fit, with the fit's knobs (`fit`).
+    - `lights`: precomputed `SpotLights` (one set, used for every channel) instead of
+      fitting (default ``None``: fit them); their images must be in the fit's units
+      (power for unit irradiance perpendicular to the light).
+    - `samples`: points per pixel side averaged (default 2; see `render_spot_lights`).
+    - `shading`: ``None`` (the default): the receiver's irradiance; `Lambertian` or
+      `Glossy`: the radiance they send (see `shade_points`).
+    - `max_gain`: bound on the intensity correction ``1 / sigma`` (> 0; default 1e4;
+      see `evaluate_spot_lights`).
+    - `intensity_correction`: apply Liu et al.'s Eq. 4 (default ``True``); ``False``
+      gives the uncorrected rendering of the paper's Fig. 6 (see `evaluate_spot_lights`).
+    - `memory_limit`: bytes for the traced rays of one channel (default 1 GiB,
+      `ray_bytes` per ray). The fit needs all of a grid's rays at once, so they are not
+      batched: a grid over the limit raises a `ValueError` before anything is compiled,
+      naming the largest `rays_per_axis` that fits (`max_rays_per_axis`). The render
+      evaluates every point at once (``samples^2`` per pixel, `_POINT_FLOATS` numbers
+      each): over the limit, refused the same way. The same limit is passed on to
+      `trace_exit_rays`, `fit_spot_lights` and `render_spot_lights`.
+    - `fit`: a dict of the keywords passed on to `fit_spot_lights` (`max_lights`,
+      `energy_fraction`, `resolution`, `cells`, thresholds...; default empty: the fit's
+      defaults); a name it does not take is refused. `render` (and `from_knobs`) take
+      them as knobs of their own: ``render(scene, "spot_lights", max_lights=8)``.
+
+    Checked before anything is traced: ints are ints (no bools or floats), `max_gain` a
+    positive finite number, `intensity_correction` a bool, `lights` a `SpotLights`;
+    with `lights`, `rays_per_axis` and the fit's knobs (unused) are refused.
+    """
 
     rays_per_axis: int = 256
     lights: SpotLights | None = None
@@ -217,35 +246,16 @@ def spot_lights(
 ) -> SpotLightResult:
     """Caustics of a glass object by caustic spot lights (Liu et al. 2008).
 
-    **Arguments:**
-
-    - `scene`: an `EllipsoidScene` (glass ellipsoid or sphere, ellipsoid occluders) or a
-      `MeshScene` (glass mesh, no occluders), lit by a `DirectionalLight`.
-    - `rays_per_axis`: rays along each side of the traced grid (the paper traces
-      1280^2); the accuracy knob of the fit, with `fit_knobs`.
-    - `lights`: precomputed `SpotLights` (one set, used for every channel) instead of
-      fitting; their images must be in the fit's units (power for unit irradiance
-      perpendicular to the light).
-    - `samples`: points per pixel side averaged (see `render_spot_lights`).
-    - `shading`, `max_gain`, `intensity_correction`: see `shade_points` and
-      `evaluate_spot_lights`.
-    - `memory_limit`: bytes for the traced rays of one channel (default 1 GiB,
-      `ray_bytes` per ray). The fit needs all of a grid's rays at once, so they are not
-      batched: a grid over the limit raises a `ValueError` before anything is compiled,
-      naming the largest `rays_per_axis` that fits (`max_rays_per_axis`). The render
-      evaluates every point at once (``samples^2`` per pixel, `_POINT_FLOATS` numbers
-      each): over the limit, refused the same way. The same limit is passed on to
-      `trace_exit_rays`, `fit_spot_lights` and `render_spot_lights`.
-    - `**fit_knobs`: passed to `fit_spot_lights` (`max_lights`, `energy_fraction`,
-      `resolution`, `cells`, thresholds...); a name it does not take is refused.
-
-    Checked before anything is traced: ints are ints (no bools or floats), `max_gain` a
-    positive finite number, `intensity_correction` a bool, `lights` a `SpotLights`;
-    with `lights`, `rays_per_axis` and fit knobs (unused) are refused.
+    The function form of `SpotLightMethod`: `scene` (an `EllipsoidScene`: glass ellipsoid
+    or sphere, ellipsoid occluders; or a `MeshScene`: glass mesh, no occluders; lit by a
+    `DirectionalLight`) and the same knobs as keywords, described there, its `fit` as
+    keywords of their own (`**fit_knobs`).
 
     **Returns:** a `SpotLightResult`.
     """
     _check_scene(scene)
+    light = scene.light
+    assert isinstance(light, DirectionalLight)  # (for mypy: `_check_scene` refuses others)
     if lights is not None and not isinstance(lights, SpotLights):
         raise ValueError(f"`lights` must be SpotLights, got {type(lights).__name__}")
     if lights is not None and fit_knobs:
@@ -266,7 +276,7 @@ def spot_lights(
     check_number(max_gain, "max_gain", low=0.0, low_open=True)
     intensity_correction = check_bool(intensity_correction, "intensity_correction")
     memory_limit = check_memory_limit(memory_limit)
-    dtype = jnp.result_type(scene.light.direction)
+    dtype = jnp.result_type(light.direction)
     per_ray = ray_bytes(dtype)
     if lights is None:
         check_fits(
@@ -286,7 +296,7 @@ def spot_lights(
     occluders = tuple(getattr(scene, "occluders", ())) if isinstance(scene, EllipsoidScene) else ()
     # the fit's units: power for unit irradiance across the light; the library's images
     # are relative to the irradiance on a horizontal plane
-    scale = 1.0 / jnp.abs(scene.light.unit_direction[2])
+    scale = 1.0 / jnp.abs(light.unit_direction[2])
     images, sets, infos, missed = [], [], [], []
     for channel in range(len(scene.iors)):
         if lights is None:

@@ -61,6 +61,7 @@ import dataclasses
 import os
 from collections.abc import Sequence
 from pathlib import Path
+from typing import Any
 
 import equinox as eqx
 import jax
@@ -245,7 +246,8 @@ class SpotLightTable(eqx.Module):
     def save(self, path: str | os.PathLike) -> None:
         """Write the table to an ``.npz`` file (numpy adds the suffix if `path` lacks it)."""
         path = _check_path(path)
-        arrays = {"format": np.asarray(_SAVE_FORMAT)}
+        # (Any: mypy would take `**arrays` for `savez_compressed`'s `allow_pickle` too)
+        arrays: dict[str, Any] = {"format": np.asarray(_SAVE_FORMAT)}
         for field in dataclasses.fields(self):
             value = getattr(self, field.name)
             if field.name == "lights":
@@ -761,9 +763,10 @@ def build_spot_light_table(
 # Precomputation
 
 
-def _fit_direction(scene, direction, *, rays_per_axis, fit_knobs, memory_limit=None):
+def fit_direction(scene, direction, *, rays_per_axis, fit_knobs, memory_limit=None):
     """The CSL set for a light travelling along `direction` ``(3,)``, and the object's
-    centre and size."""
+    centre and size: `trace_exit_rays` with `rays_per_axis`, then `fit_spot_lights` with
+    `fit_knobs`, as `precompute_spot_lights` fits each direction of its table."""
 
     rays = trace_exit_rays(scene, rays_per_axis, direction=direction, memory_limit=memory_limit)
     lights, _ = fit_spot_lights(rays, memory_limit=memory_limit, **fit_knobs)
@@ -943,7 +946,7 @@ def precompute_spot_lights(
     edges = direction_edges(faces)
     dtype = jnp.result_type(float)
     lights, centres, sizes = map_sharded(
-        lambda sc, d: _fit_direction(
+        lambda sc, d: fit_direction(
             sc, d, rays_per_axis=rays_per_axis, fit_knobs=fit_knobs, memory_limit=memory_limit
         ),
         scene,

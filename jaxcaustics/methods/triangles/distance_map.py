@@ -407,7 +407,7 @@ def _lookup(planes, present, h, resolution: int, lookup: str, layer=None):
     r0 = jnp.clip(jnp.floor(ys), 0, resolution - 2).astype(jnp.int32)
     fx = jnp.clip(xs - c0, 0.0, 1.0)
     fy = jnp.clip(ys - r0, 0.0, 1.0)
-    gh = 0.0
+    gh: Array | float = 0.0
     for dr, dc, wgt in ((0, 0, (1 - fx) * (1 - fy)), (0, 1, fx * (1 - fy))) + (
         (1, 0, (1 - fx) * fy),
         (1, 1, fx * fy),
@@ -783,8 +783,8 @@ def tracing_error_table(
     for it in secant_iterations:
         _check_trace_args(lookup, 1, it, attempts)
     origins, directions = jnp.asarray(origins), jnp.asarray(directions)
-    t_exact, m_exact = exact_hits(origins, directions, occluders, receiver)
-    t_exact, m_exact = np.asarray(t_exact), np.asarray(m_exact)
+    t_hit, m_hit = exact_hits(origins, directions, occluders, receiver)
+    t_exact, m_exact = np.asarray(t_hit), np.asarray(m_hit)
     has = np.isfinite(t_exact)
     p_exact = np.asarray(origins) + np.asarray(directions) * np.where(has, t_exact, 0)[:, None]
     shape = (len(linear_steps), len(secant_iterations))

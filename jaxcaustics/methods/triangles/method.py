@@ -89,11 +89,11 @@ class TrianglesResult(eqx.Module):
       the valid triangles that is not in the image (it lands off the screen, or beyond a
       triangle's `window`).
     - `photons`: the photon hit location image used; ``None`` when the grid was traced
-      in bands (it never existed whole: see `caustic_triangles`' `memory_limit`).
+      in bands (it never existed whole: see `CausticTriangles`' `memory_limit`).
     - `stats`: dict of Python ints: ``bands`` (row bands of the photon grid, traced one
       after the other), ``batches`` (rasteriser calls, all bands), ``triangle_batch``
       (triangles per call, in the widest tier), ``tiers`` (``(window, capacity,
-      batch)`` per tier of each band, widest first: see `caustic_triangles`' `window`),
+      batch)`` per tier of each band, widest first: see `CausticTriangles`' `window`),
       ``ray_batch`` (mesh scenes: rays per triangle search),
       ``devices``, ``peak_buffer_photons`` (photons of one band) and
       ``peak_buffer_bytes`` (one band's photon and triangle buffers plus the largest
@@ -386,7 +386,7 @@ def triangles_image(
     caustic triangles (the photons' terminal positions are taken on the plane ``z = 0``).
 
     **Returns:** ``(images, missed_flux_fraction)`` of shapes ``(channels, rows, cols)``
-    and ``(channels,)``. See `caustic_triangles` for the knobs (`window`: ``"auto"`` or
+    and ``(channels,)``. See `CausticTriangles` for the knobs (`window`: ``"auto"`` or
     an int up to one past the receiver's larger side; `batch_size`: triangles per
     rasteriser call).
     """
@@ -398,7 +398,11 @@ def triangles_image(
     if not _is_auto(window):
         tiers = _plain_tier(_check_window(window, receiver), batch_size)
     elif isinstance(photons.position, jax.core.Tracer):
-        raise ValueError("window='auto' needs concrete scene values; under jit/vmap pass an int")
+        raise ValueError(
+            "window='auto' needs concrete scene values: fix it first with "
+            "`method = jc.method_for(scene)` and transform `render(scene, method)`, or pass "
+            "an int"
+        )
     else:
         by_flux, by_count = _extent_histogram_jit(photons, extent, shape)
         rows, cols = photons.grid_shape
@@ -465,7 +469,7 @@ def trace_photons(
 ):
     """The photon hit location image of a `LensScene` or `MeshScene` (jit-compiled).
 
-    `grid`: ``n`` or ``(rows, cols)`` photons (as `caustic_triangles`' `photons`);
+    `grid`: ``n`` or ``(rows, cols)`` photons (as `CausticTriangles`' `photons`);
     `hit_iterations`: lens scenes only (Newton steps, ``[0, 100]``); `batch_size`: mesh
     scenes only (rays per batch of the triangle search). The whole grid is traced at
     once: its photons (`band_bytes`) must fit in `memory_limit` (default 1 GiB).
@@ -743,8 +747,77 @@ def _banded_image(scene, cfg: _BandConfig, mean_area, reconstruction, tiers, sup
 class CausticTriangles(Method):
     """Umenhoffer et al.'s caustic triangles for lens slabs and meshes (refractors,
     mirrors, occluders): ``CausticTriangles(photons=...)(scene)`` or ``render(scene,
-    CausticTriangles(...))``. The knobs (and their defaults) are those of
-    `caustic_triangles`."""
+    CausticTriangles(...))``.
+
+    **Arguments:**
+
+    - `photons`: the photon grid, ``n`` (``n x n``) or ``(rows, cols)`` photons
+      (vertices of the grid; default 257); ``2 (rows - 1) (cols - 1)`` triangles.
+    - `reconstruction`: ``"exact"`` (flux-conserving, exact overlap areas) or
+      ``"gouraud"`` (the paper's vertex irradiance with Gouraud interpolation); default
+      ``"exact"``.
+    - `window`: each triangle touches a ``window x window`` block of pixels; ``"auto"``
+      (the default) takes the smallest window that holds whole the triangles carrying
+      99.9% of the flux (`triangle_window`; needs concrete scene values: inside `jax.jit`
+      pass an int, or size it beforehand with ``method_for(scene)``).
+      Flux beyond it is reported as missed. With ``"auto"`` the triangles are also drawn
+      in *tiers* (`jaxcaustics.reconstruct.raster.sum_in_tiers`): by the pixels they
+      span, the few wide ones with that window, the many narrow ones with up to
+      `MAX_TIERS` - 1 narrower windows (powers of two), and invalid ones not at all; the
+      tiers are the cheapest by `triangle_bytes` (`stats["tiers"]`), their capacities
+      powers of two, so that a new scene seldom compiles anew. Same image, to rounding:
+      on the 320-face blob of the accuracy report (97^2 photons, 64^2 pixels, window 32)
+      the rasterisation took 6 ms against 150 ms with one window.
+    - `supersample`: ``"gouraud"`` only: ``S x S`` point samples per pixel (default 2).
+    - `hit_iterations`: lens scenes: Newton steps for the top-surface hit (default 3).
+    - `memory_limit`: bytes for the photon and triangle buffers (default 1 GiB). Half
+      goes to photons: when the grid's photons (`band_bytes`) exceed it, the grid is
+      traced and drawn in *bands* of photon rows, one after the other (a loop: the
+      compiled graph does not grow with the grid), consecutive bands sharing one row
+      so that every triangle is drawn exactly once (Gouraud bands also trace one halo
+      row on each side for the vertex irradiance); the whole grid then never exists,
+      `TrianglesResult.photons` is ``None``, and ``window="auto"`` or Gouraud costs a
+      first pass over the bands (the window's histogram, the mean triangle area). A
+      quarter goes to each rasteriser batch (`triangle_bytes` per triangle) and, for
+      mesh scenes, a quarter to the rays of one triangle-search batch. Same image
+      (to rounding) whatever the limit.
+    - `batch_size`: mesh scenes: rays per batch in the triangle search (memory
+      ``batch_size x faces``); default from `memory_limit`, at most 4096.
+    - `triangle_batch`: triangles rasterised at a time; default from `memory_limit`.
+    - `devices`: ``None`` (the default): the default device only. An int ``n`` (the first
+      ``n`` of `jax.devices()`) or a list of devices: the bands are split across them
+      (`jax.shard_map` over `jaxcaustics.devices.device_mesh(devices)`, at least one
+      band per device) and the partial images summed (``psum``); same image to
+      rounding.
+    - `visibility`: mesh scenes: ``"exact"`` (the default; rays leaving the generator are
+      intersected exactly with the occluders and the screen; triangles are drawn on the
+      screen) or
+      ``"distance_map"`` (the paper's pipeline: rays are traced in a layered distance map
+      of the screen and the occluders around the generator, caustic triangles are drawn
+      with Gouraud interpolation onto a light cube map, and the camera pass projects it
+      onto the screen with a shadow-map distance test, so caustics landing on an
+      occluder do not leak onto the screen behind it). Its knobs: `cube_map`
+      (`CubeMapOptions`; ``None``, the default: its defaults); `reconstruction`, `window`
+      and `supersample` do not apply, and the missed-flux fraction is NaN (light may
+      land on occluders). It traces the
+      whole grid at once: a grid over half the `memory_limit` raises a `ValueError`,
+      and `devices` must be ``None``.
+
+    Checks, before anything is compiled: ints are ints (no bools or floats), `window` at
+    most one past the receiver's larger side, `hit_iterations` in ``[0, 100]``; a knob
+    set where it does not apply (`hit_iterations` on a mesh, `batch_size` on a lens,
+    `supersample` with ``"exact"``, `cube_map` without ``"distance_map"``, and
+    `reconstruction`, `window`, `supersample`, `triangle_batch` with it) is refused by
+    name. Memory and work (`memory_limit`): the receiver's images, the smallest band
+    (2 photon rows, with a halo for Gouraud, and one ray batch) in half the limit and
+    one triangle (`triangle_bytes` at the window; for ``"auto"``, once the window is
+    known, before the rasteriser is compiled) in a quarter must fit, else a
+    `ValueError` with the estimate and the knob to change. An absurd photon count is
+    refused, not run for days: at most 2^31 photons (a 46340^2 grid,
+    `jaxcaustics._checks.MAX_PHOTONS`) in at most 2^20 batches (bands times rasteriser
+    batches, `MAX_BATCHES`: more means a `memory_limit` far too small for `photons`).
+    An explicit `triangle_batch` is taken as given (at most a band's triangles).
+    """
 
     photons: int | tuple[int, int] = 257
     reconstruction: Literal["exact", "gouraud"] = "exact"
@@ -816,71 +889,8 @@ def caustic_triangles(
 ) -> TrianglesResult:
     """Caustics of a lens or mesh scene by caustic triangles.
 
-    **Arguments:**
-
-    - `scene`: a `LensScene`, a `MirrorScene` or a `MeshScene`.
-    - `photons`: the photon grid, ``n`` (``n x n``) or ``(rows, cols)`` photons
-      (vertices of the grid); ``2 (rows - 1) (cols - 1)`` triangles.
-    - `reconstruction`: ``"exact"`` (flux-conserving, exact overlap areas) or
-      ``"gouraud"`` (the paper's vertex irradiance with Gouraud interpolation).
-    - `window`: each triangle touches a ``window x window`` block of pixels; ``"auto"``
-      takes the smallest window that holds whole the triangles carrying 99.9% of the
-      flux (`triangle_window`; needs concrete scene values: inside `jax.jit` pass an int).
-      Flux beyond it is reported as missed. With ``"auto"`` the triangles are also drawn
-      in *tiers* (`jaxcaustics.reconstruct.raster.sum_in_tiers`): by the pixels they
-      span, the few wide ones with that window, the many narrow ones with up to
-      `MAX_TIERS` - 1 narrower windows (powers of two), and invalid ones not at all; the
-      tiers are the cheapest by `triangle_bytes` (`stats["tiers"]`), their capacities
-      powers of two, so that a new scene seldom compiles anew. Same image, to rounding:
-      on the 320-face blob of the accuracy report (97^2 photons, 64^2 pixels, window 32)
-      the rasterisation took 6 ms against 150 ms with one window.
-    - `supersample`: ``"gouraud"`` only: ``S x S`` point samples per pixel.
-    - `hit_iterations`: lens scenes: Newton steps for the top-surface hit.
-    - `memory_limit`: bytes for the photon and triangle buffers (default 1 GiB). Half
-      goes to photons: when the grid's photons (`band_bytes`) exceed it, the grid is
-      traced and drawn in *bands* of photon rows, one after the other (a loop: the
-      compiled graph does not grow with the grid), consecutive bands sharing one row
-      so that every triangle is drawn exactly once (Gouraud bands also trace one halo
-      row on each side for the vertex irradiance); the whole grid then never exists,
-      `TrianglesResult.photons` is ``None``, and ``window="auto"`` or Gouraud costs a
-      first pass over the bands (the window's histogram, the mean triangle area). A
-      quarter goes to each rasteriser batch (`triangle_bytes` per triangle) and, for
-      mesh scenes, a quarter to the rays of one triangle-search batch. Same image
-      (to rounding) whatever the limit.
-    - `batch_size`: mesh scenes: rays per batch in the triangle search (memory
-      ``batch_size x faces``); default from `memory_limit`, at most 4096.
-    - `triangle_batch`: triangles rasterised at a time; default from `memory_limit`.
-    - `devices`: ``None``: the default device only. An int ``n`` (the first ``n`` of
-      `jax.devices()`) or a list of devices: the bands are split across them
-      (`jax.shard_map` over `jaxcaustics.devices.device_mesh(devices)`, at least one
-      band per device) and the partial images summed (``psum``); same image to
-      rounding.
-    - `visibility`: mesh scenes: ``"exact"`` (rays leaving the generator are intersected
-      exactly with the occluders and the screen; triangles are drawn on the screen) or
-      ``"distance_map"`` (the paper's pipeline: rays are traced in a layered distance map
-      of the screen and the occluders around the generator, caustic triangles are drawn
-      with Gouraud interpolation onto a light cube map, and the camera pass projects it
-      onto the screen with a shadow-map distance test, so caustics landing on an
-      occluder do not leak onto the screen behind it). Its knobs: `cube_map`
-      (`CubeMapOptions`); `reconstruction`, `window` and `supersample` do not apply, and
-      the missed-flux fraction is NaN (light may land on occluders). It traces the
-      whole grid at once: a grid over half the `memory_limit` raises a `ValueError`,
-      and `devices` must be ``None``.
-
-    Checks, before anything is compiled: ints are ints (no bools or floats), `window` at
-    most one past the receiver's larger side, `hit_iterations` in ``[0, 100]``; a knob
-    set where it does not apply (`hit_iterations` on a mesh, `batch_size` on a lens,
-    `supersample` with ``"exact"``, `cube_map` without ``"distance_map"``, and
-    `reconstruction`, `window`, `supersample`, `triangle_batch` with it) is refused by
-    name. Memory and work (`memory_limit`): the receiver's images, the smallest band
-    (2 photon rows, with a halo for Gouraud, and one ray batch) in half the limit and
-    one triangle (`triangle_bytes` at the window; for ``"auto"``, once the window is
-    known, before the rasteriser is compiled) in a quarter must fit, else a
-    `ValueError` with the estimate and the knob to change. An absurd photon count is
-    refused, not run for days: at most 2^31 photons (a 46340^2 grid,
-    `jaxcaustics._checks.MAX_PHOTONS`) in at most 2^20 batches (bands times rasteriser
-    batches, `MAX_BATCHES`: more means a `memory_limit` far too small for `photons`).
-    An explicit `triangle_batch` is taken as given (at most a band's triangles).
+    The function form of `CausticTriangles`: `scene` (a `LensScene`, a `MirrorScene` or a
+    `MeshScene`) and the same knobs as keywords, described there.
 
     **Returns:** a `TrianglesResult` (image, missed-flux fraction, photons, stats).
     Differentiable with respect to the scene's arrays (the lens heights, the mesh
@@ -968,7 +978,7 @@ def caustic_triangles(
             share=4,
         )
 
-    check_triangle(1 if _is_auto(window) else window)  # "auto": at least one pixel
+    check_triangle(1 if window == "auto" else window)  # "auto": at least one pixel
 
     if visibility == "distance_map":
         if not isinstance(scene, MeshScene):
@@ -998,7 +1008,11 @@ def caustic_triangles(
     cfg = _BandConfig(grid, rows, halo, bands, hit_iterations, ray_batch)
     traced = any(isinstance(x, jax.core.Tracer) for x in jax.tree.leaves(scene))
     if window == "auto" and traced:
-        raise ValueError("window='auto' needs concrete scene values; under jit/vmap pass an int")
+        raise ValueError(
+            "window='auto' needs concrete scene values: fix it first with "
+            "`method = jc.method_for(scene)` and transform `render(scene, method)`, or pass "
+            "an int"
+        )
     ph, mean_area, by_count = None, None, None
     if not banded:
         ph = _trace_photons(scene, grid, hit_iterations, batch_size)
