@@ -150,7 +150,7 @@ def test_design_lens_variants_refuses(forbid, kwargs, name):
     ],
 )
 def test_fresnel_zones_refuses(heights, depth, name):
-    refused(lambda: jc.fresnel_zones(heights, depth), name)
+    refused(lambda: jc.internal.fresnel_zones(heights, depth), name)
 
 
 # ------------------------------------------------------------------ recover_surface
@@ -299,7 +299,7 @@ def test_relative_l2_refuses(image, target, name):
 def test_transport_map_refuses(kwargs, name):
     source = kwargs.pop("source", np.ones((8, 8)))
     target = np.ones(source.shape if isinstance(source, np.ndarray) else (8, 8))
-    refused(lambda: jc.transport_map(source, target, **kwargs), name)
+    refused(lambda: jc.internal.transport_map(source, target, **kwargs), name)
 
 
 # ------------------------------------------------------------------ export
@@ -311,11 +311,14 @@ BIG_FIELD = jc.HeightField(np.zeros((2100, 2100)), (0.0, 0.1, 0.0, 0.1), "clamp"
 @pytest.mark.parametrize(
     ("call", "name"),
     [
-        (lambda: jc.lens_solid(FIELD, "0.004"), "thickness"),  # a string was a number
-        (lambda: jc.lens_solid(FIELD, 0.004, samples=(10**5, 10**5)), "samples"),  # minutes
-        (lambda: jc.lens_solid(FIELD, 0.004, samples=(8.0, 8)), "samples"),
-        (lambda: jc.lens_solid(BIG_FIELD, 0.004), "samples"),  # its default grid
-        (lambda: jc.lens_height_map(FIELD, 0.004, samples="88"), "samples"),
+        (lambda: jc.internal.lens_solid(FIELD, "0.004"), "thickness"),  # a string was a number
+        (
+            lambda: jc.internal.lens_solid(FIELD, 0.004, samples=(10**5, 10**5)),
+            "samples",
+        ),  # minutes
+        (lambda: jc.internal.lens_solid(FIELD, 0.004, samples=(8.0, 8)), "samples"),
+        (lambda: jc.internal.lens_solid(BIG_FIELD, 0.004), "samples"),  # its default grid
+        (lambda: jc.internal.lens_height_map(FIELD, 0.004, samples="88"), "samples"),
         (lambda: jc.manufacturability(FIELD, thickness=0.004, tool_radius_mm="1"), "tool_radius"),
         (lambda: jc.manufacturability(FIELD, thickness=0.004, samples=(10**5, 10**5)), "samples"),
         (lambda: jc.export_lens(FIELD, "/tmp/never", thickness=0.004, formats=()), "formats"),
@@ -336,10 +339,10 @@ def test_export_refuses(call, name):
         (lambda p: jc.write_png(p / "x.png", np.ones((4, 4)), exposure=True), "exposure"),
         (lambda p: jc.write_png(p / "x.png", np.ones((4, 4)), gamma="2.2"), "gamma"),
         (lambda p: jc.write_png(p / "x.png", np.ones((4, 4)), bit_depth=8.0), "bit_depth"),
-        (lambda p: jc.write_png_linear16(p / "x.png", np.ones((4, 4)), vmax=True), "vmax"),
+        (lambda p: jc.io.write_png_linear16(p / "x.png", np.ones((4, 4)), vmax=True), "vmax"),
         (lambda p: jc.write_png(f"{UNWRITABLE}/x.png", np.ones((4, 4))), "path"),
-        (lambda p: jc.write_exr(f"{UNWRITABLE}/x.exr", np.ones((4, 4))), "path"),
-        (lambda p: jc.write_exr(p / "a_file" / "x.exr", np.ones((4, 4))), "path"),
+        (lambda p: jc.io.write_exr(f"{UNWRITABLE}/x.exr", np.ones((4, 4))), "path"),
+        (lambda p: jc.io.write_exr(p / "a_file" / "x.exr", np.ones((4, 4))), "path"),
         (lambda p: jc.read_image(p / "a.png", as_gray="no"), "as_gray"),
     ],
 )
@@ -521,7 +524,7 @@ def test_cli_refuses_in_one_line(out, capsys, monkeypatch, argv, flag):
     monkeypatch.setattr(sequence_module, "recover_sequence", started)
     monkeypatch.setattr(reference, "trace_water", started)
     monkeypatch.setattr(jc, "render", started)
-    monkeypatch.setattr(jc, "auto_window", started)
+    monkeypatch.setattr(jc.internal, "auto_window", started)
     argv = [a.replace("{out}", str(out)) for a in argv]
     if "--output" not in argv:
         argv += ["--output", str(out / "results")]

@@ -70,7 +70,9 @@ def _waves(**kw):
 
 
 def _bump(**kw):
-    return jc.gaussian_bump(**{"shape": (8, 8), "extent": E, "sigma": 0.1, "amplitude": 0.01, **kw})
+    return jc.internal.gaussian_bump(
+        **{"shape": (8, 8), "extent": E, "sigma": 0.1, "amplitude": 0.01, **kw}
+    )
 
 
 def _sines(**kw):
@@ -268,13 +270,13 @@ CASES = [
     ("terms[0] amplitude", lambda: _sine_term(a=True)),
     ("terms[0] amplitude", lambda: _sine_term(a="0.1")),
     # stack_scenes, unstack_scenes
-    ("scenes", lambda: jc.stack_scenes(None)),
-    ("scenes", lambda: jc.stack_scenes(3)),
-    ("scenes", lambda: jc.stack_scenes(_water())),
-    ("scenes", lambda: jc.stack_scenes([])),
-    ("scenes", lambda: jc.stack_scenes([_water(), _water(ior=1.5)])),
-    ("scenes", lambda: jc.unstack_scenes(_water())),
-    ("scenes", lambda: jc.unstack_scenes(None)),
+    ("scenes", lambda: jc.devices.stack_scenes(None)),
+    ("scenes", lambda: jc.devices.stack_scenes(3)),
+    ("scenes", lambda: jc.devices.stack_scenes(_water())),
+    ("scenes", lambda: jc.devices.stack_scenes([])),
+    ("scenes", lambda: jc.devices.stack_scenes([_water(), _water(ior=1.5)])),
+    ("scenes", lambda: jc.devices.unstack_scenes(_water())),
+    ("scenes", lambda: jc.devices.unstack_scenes(None)),
 ]
 
 
@@ -301,7 +303,10 @@ def test_valid_neighbours_still_build():
     assert _mesh_scene(generator=inside_out, material="mirror").material == "mirror"
     assert jc.Glossy([0.0, 0.0, 1.0], 0.0, 1.0, 0.0).shininess == 0.0
     assert jc.Lambertian(np.float64(0.5)).albedo == 0.5
-    assert len(jc.unstack_scenes(jc.stack_scenes(w for w in [_water(), _water()]))) == 2
+    assert (
+        len(jc.devices.unstack_scenes(jc.devices.stack_scenes(w for w in [_water(), _water()])))
+        == 2
+    )
 
 
 # --------------------------------------------------------------------------- property

@@ -31,7 +31,7 @@ def forbidden(*args, **kwargs):
 
 @pytest.fixture(scope="module")
 def light():
-    return jc.SpotLights(
+    return jc.internal.SpotLights(
         [[0.0, 0.0, 2.0]], [[0.0, 0.0, -1.0]], [[1.0, 0.0, 0.0]], [1.0], [0.5], [0.3],
         np.ones((1, 4, 4)),
     )  # fmt: skip
@@ -111,7 +111,7 @@ SPOT = dict(
 )
 def test_spot_lights_constructor(name, value):
     with pytest.raises(ValueError, match=f"`{name}`"):
-        jc.SpotLights(**{**SPOT, name: value})
+        jc.internal.SpotLights(**{**SPOT, name: value})
 
 
 # ------------------------------------------------------------------ evaluate / shade / render
@@ -134,7 +134,7 @@ BAD_OPTIONS = [
 @pytest.mark.parametrize("name, value", BAD_OPTIONS)
 def test_evaluate_options(light, no_work, name, value):
     with pytest.raises(ValueError, match=f"`{name}`"):
-        jc.evaluate_spot_lights(light, np.zeros((2, 3)), **{name: value})
+        jc.internal.evaluate_spot_lights(light, np.zeros((2, 3)), **{name: value})
 
 
 @pytest.mark.parametrize(
@@ -152,13 +152,13 @@ def test_evaluate_options(light, no_work, name, value):
 def test_evaluate_arrays(light, no_work, lights, points, name):
     lights = light if lights == "light" else lights
     with pytest.raises(ValueError, match=f"`{name}`"):
-        jc.evaluate_spot_lights(lights, points, memory_limit=1000)
+        jc.internal.evaluate_spot_lights(lights, points, memory_limit=1000)
 
 
 @pytest.mark.parametrize("name, value", BAD_OPTIONS)
 def test_shade_options(light, no_work, name, value):
     with pytest.raises(ValueError, match=f"`{name}`"):
-        jc.shade_points(light, np.zeros((1, 3)), UP, **{name: value})
+        jc.internal.shade_points(light, np.zeros((1, 3)), UP, **{name: value})
 
 
 @pytest.mark.parametrize(
@@ -181,13 +181,13 @@ def test_shade_arguments(light, no_work, kwargs, name):
     args = {"lights": light, "points": np.zeros((1, 3)), "normals": UP, **kwargs}
     lights, points, normals = args.pop("lights"), args.pop("points"), args.pop("normals")
     with pytest.raises(ValueError, match=f"`{name}`"):
-        jc.shade_points(lights, points, normals, **args)
+        jc.internal.shade_points(lights, points, normals, **args)
 
 
 def test_shade_refuses_more_points_than_the_limit(light, no_work):
     points = np.zeros((1000, 3))
     with pytest.raises(ValueError, match=r"`points`.*`memory_limit`"):
-        jc.shade_points(light, points, points + 1.0, memory_limit=1000)
+        jc.internal.shade_points(light, points, points + 1.0, memory_limit=1000)
 
 
 @pytest.mark.parametrize("name, value", BAD_OPTIONS + [("samples", 0), ("samples", 2.0),
@@ -197,7 +197,7 @@ def test_shade_refuses_more_points_than_the_limit(light, no_work):
 def test_render_arguments(light, no_work, name, value):
     receiver = jc.PlaneReceiver((-1.0, 1.0, -1.0, 1.0), (4, 4))
     with pytest.raises(ValueError, match=f"`{name}"):
-        jc.render_spot_lights(light, receiver, **{name: value})
+        jc.internal.render_spot_lights(light, receiver, **{name: value})
 
 
 @pytest.mark.parametrize("lights, receiver, name", [("x", "receiver", "lights"),
@@ -208,13 +208,13 @@ def test_render_objects(light, no_work, lights, receiver, name):
     if receiver == "receiver":
         receiver = jc.PlaneReceiver((-1.0, 1.0, -1.0, 1.0), (4, 4))
     with pytest.raises(ValueError, match=f"`{name}`"):
-        jc.render_spot_lights(lights, receiver)
+        jc.internal.render_spot_lights(lights, receiver)
 
 
 def test_render_refuses_a_receiver_over_the_limit(light, no_work):
     receiver = jc.PlaneReceiver((-1.0, 1.0, -1.0, 1.0), (8000, 8000))
     with pytest.raises(ValueError, match=r"`samples` or the receiver's `shape`.*`memory_limit`"):
-        jc.render_spot_lights(light, receiver, samples=4)
+        jc.internal.render_spot_lights(light, receiver, samples=4)
 
 
 # ------------------------------------------------------------------------------ the fit
@@ -243,7 +243,7 @@ RAYS = (RNG.normal(size=(16, 3)), np.tile([0.0, 0.0, -1.0], (16, 1)), np.ones(16
 )
 def test_fit_knobs(no_work, name, value):
     with pytest.raises(ValueError, match=f"`{name}`"):
-        jc.fit_spot_lights(RAYS, **{name: value})
+        jc.internal.fit_spot_lights(RAYS, **{name: value})
 
 
 @pytest.mark.parametrize(
@@ -256,7 +256,7 @@ def test_fit_knobs(no_work, name, value):
 )
 def test_fit_rays(no_work, rays, name):
     with pytest.raises(ValueError, match=f"`{name}`"):
-        jc.fit_spot_lights(rays)
+        jc.internal.fit_spot_lights(rays)
 
 
 REFINE = dict(
@@ -297,7 +297,7 @@ def test_refine_axis(no_work, name, value):
     kwargs = {**REFINE, name: value}
     args = [kwargs.pop(n) for n in ("origin", "direction", "energy", "axis_point")]
     with pytest.raises(ValueError, match=f"`{name}`"):
-        jc.refine_axis(*args, kwargs.pop("axis_direction"), **kwargs)
+        jc.internal.refine_axis(*args, kwargs.pop("axis_direction"), **kwargs)
 
 
 # ----------------------------------------------------------------------- the moving light
@@ -340,16 +340,16 @@ def test_precompute(ball, no_work, kwargs, name):
 @pytest.mark.parametrize("value", ["2", 2.0, -1, 7, True, None])
 def test_icosphere_directions(value):
     with pytest.raises(ValueError, match="`subdivisions`"):
-        jc.icosphere_directions(value)
+        jc.internal.icosphere_directions(value)
 
 
 def test_interpolate_and_table_files(no_work, tmp_path):
     table = object.__new__(jc.SpotLightTable)  # the checks come before its fields are read
     with pytest.raises(ValueError, match="`table`"):
-        jc.interpolate_spot_lights("x", [0.0, 0.0, -1.0])
+        jc.internal.interpolate_spot_lights("x", [0.0, 0.0, -1.0])
     for direction in ("down", [NAN, 0.0, -1.0], [0.0, 0.0, 0.0], [0.0, 1.0]):
         with pytest.raises(ValueError, match="`direction`"):
-            jc.interpolate_spot_lights(table, direction)
+            jc.internal.interpolate_spot_lights(table, direction)
     for path in (None, 3):
         with pytest.raises(ValueError, match="`path`"):
             jc.SpotLightTable.load(path)
@@ -381,7 +381,7 @@ def test_trace_exit_rays(ball, monkeypatch, kwargs, name):
     monkeypatch.setattr(_ellipsoid, "_ellipsoid_exit_rays", forbidden)
     kwargs = {"rays_per_axis": 4, **kwargs}
     with pytest.raises(ValueError, match=f"`{name}`"):
-        jc.trace_exit_rays(ball, kwargs.pop("rays_per_axis"), **kwargs)
+        jc.internal.trace_exit_rays(ball, kwargs.pop("rays_per_axis"), **kwargs)
 
 
 # ------------------------------------------------------------------- image-space tools
@@ -390,7 +390,7 @@ def test_trace_exit_rays(ball, monkeypatch, kwargs, name):
 def test_light_view(ball):
     for scene in ("x", None, ball):
         with pytest.raises(ValueError, match="`scene`"):
-            jc.light_view(scene)
+            jc.internal.light_view(scene)
 
 
 @pytest.mark.parametrize(
@@ -411,7 +411,7 @@ def test_light_view(ball):
 def test_geometry_buffers(glass, view, no_work, kwargs, name):
     args = {"scene": glass, "view": view, "resolution": 8, "window": 4, **kwargs}
     with pytest.raises(ValueError, match=f"`{name}`"):
-        jc.geometry_buffers(**args)
+        jc.internal.geometry_buffers(**args)
 
 
 @pytest.mark.parametrize(
@@ -439,7 +439,7 @@ def test_ray_geo(view, no_work, kwargs, name):
     )
     args.update(kwargs)
     with pytest.raises(ValueError, match=f"`{name}`"):
-        jc.ray_geo(**args)
+        jc.internal.ray_geo(**args)
 
 
 # ------------------------------------------------------------------------------ kernels
@@ -450,22 +450,22 @@ D, N = np.array([[0.0, 0.0, -1.0]]), np.array([[0.0, 0.0, 1.0]])
 @pytest.mark.parametrize(
     "call, name",
     [
-        (lambda: jc.refract("abc", N, 1.5), "direction"),
-        (lambda: jc.refract(np.zeros((1, 2)), N, 1.5), "direction"),
-        (lambda: jc.refract(D * NAN, N, 1.5), "direction"),
-        (lambda: jc.refract(np.zeros((2, 3)), np.zeros((3, 3)), 1.5), "normal"),
-        (lambda: jc.refract(D, N, "1.5"), "eta"),
-        (lambda: jc.refract(D, N, -1.0), "eta"),
-        (lambda: jc.refract(D, N, 0.0), "eta"),
-        (lambda: jc.refract(D, N, NAN), "eta"),
-        (lambda: jc.refract(D, N, True), "eta"),
-        (lambda: jc.refract(D, N, np.array([1.0, -1.0])), "eta"),
-        (lambda: jc.reflect("abc", N), "direction"),
-        (lambda: jc.reflect(D, None), "normal"),
-        (lambda: jc.fresnel_transmittance("a", 1.5), "cos_i"),
-        (lambda: jc.fresnel_transmittance(np.array([2.0]), 1.5), "cos_i"),
-        (lambda: jc.fresnel_transmittance(np.array([0.5]), -1.0), "eta"),
-        (lambda: jc.height_and_gradient("x", np.zeros(2), np.zeros(2)), "surface"),
+        (lambda: jc.internal.refract("abc", N, 1.5), "direction"),
+        (lambda: jc.internal.refract(np.zeros((1, 2)), N, 1.5), "direction"),
+        (lambda: jc.internal.refract(D * NAN, N, 1.5), "direction"),
+        (lambda: jc.internal.refract(np.zeros((2, 3)), np.zeros((3, 3)), 1.5), "normal"),
+        (lambda: jc.internal.refract(D, N, "1.5"), "eta"),
+        (lambda: jc.internal.refract(D, N, -1.0), "eta"),
+        (lambda: jc.internal.refract(D, N, 0.0), "eta"),
+        (lambda: jc.internal.refract(D, N, NAN), "eta"),
+        (lambda: jc.internal.refract(D, N, True), "eta"),
+        (lambda: jc.internal.refract(D, N, np.array([1.0, -1.0])), "eta"),
+        (lambda: jc.internal.reflect("abc", N), "direction"),
+        (lambda: jc.internal.reflect(D, None), "normal"),
+        (lambda: jc.internal.fresnel_transmittance("a", 1.5), "cos_i"),
+        (lambda: jc.internal.fresnel_transmittance(np.array([2.0]), 1.5), "cos_i"),
+        (lambda: jc.internal.fresnel_transmittance(np.array([0.5]), -1.0), "eta"),
+        (lambda: jc.internal.height_and_gradient("x", np.zeros(2), np.zeros(2)), "surface"),
     ],
 )
 def test_optics(call, name):
@@ -490,7 +490,7 @@ def field():
 )
 def test_height_and_gradient(field, x, y, kwargs, name):
     with pytest.raises(ValueError, match=f"`{name}`"):
-        jc.height_and_gradient(field, x, y, **kwargs)
+        jc.internal.height_and_gradient(field, x, y, **kwargs)
 
 
 # ----------------------------------------------------------------------------- sharding
@@ -499,12 +499,15 @@ def test_height_and_gradient(field, x, y, kwargs, name):
 @pytest.mark.parametrize(
     "call, name",
     [
-        (lambda: jc.device_mesh(1.0), "devices"),
-        (lambda: jc.device_mesh([jax.devices()[0]] * 2), "devices"),
-        (lambda: jc.map_sharded(1, None, np.zeros(4)), "fn"),
-        (lambda: jc.map_sharded(lambda s, x: x, None, np.zeros(4), chunk=2.0), "chunk"),
-        (lambda: jc.map_sharded(lambda s, x: x, None, np.zeros(4), progress="no"), "progress"),
-        (lambda: jc.map_sharded(lambda s, x: x, None, np.zeros(4), desc=3), "desc"),
+        (lambda: jc.devices.device_mesh(1.0), "devices"),
+        (lambda: jc.devices.device_mesh([jax.devices()[0]] * 2), "devices"),
+        (lambda: jc.devices.map_sharded(1, None, np.zeros(4)), "fn"),
+        (lambda: jc.devices.map_sharded(lambda s, x: x, None, np.zeros(4), chunk=2.0), "chunk"),
+        (
+            lambda: jc.devices.map_sharded(lambda s, x: x, None, np.zeros(4), progress="no"),
+            "progress",
+        ),
+        (lambda: jc.devices.map_sharded(lambda s, x: x, None, np.zeros(4), desc=3), "desc"),
     ],
 )
 def test_sharding(call, name):
@@ -517,12 +520,14 @@ def test_sharding(call, name):
 
 def test_kernels_run_under_jit(field):
     d, n = jnp.asarray(D), jnp.asarray(N)
-    t, tir = jax.jit(jc.refract)(d, n, 1 / 1.5)
+    t, tir = jax.jit(jc.internal.refract)(d, n, 1 / 1.5)
     assert np.allclose(t, D) and not bool(tir[0])
-    assert np.allclose(jax.jit(jc.reflect)(d, n), -D)
-    value = jax.jit(jc.fresnel_transmittance)(jnp.array([1.0]), jnp.asarray(1 / 1.5))
+    assert np.allclose(jax.jit(jc.internal.reflect)(d, n), -D)
+    value = jax.jit(jc.internal.fresnel_transmittance)(jnp.array([1.0]), jnp.asarray(1 / 1.5))
     assert float(value[0]) == pytest.approx(0.96)
-    grad = jax.grad(lambda e: jc.refract(d, n, e)[0][0, 2])(0.5)
+    grad = jax.grad(lambda e: jc.internal.refract(d, n, e)[0][0, 2])(0.5)
     assert np.isfinite(float(grad))
-    h, hx, hy = eqx.filter_jit(jc.height_and_gradient)(field, jnp.array([0.3]), jnp.array([0.4]))
+    h, hx, hy = eqx.filter_jit(jc.internal.height_and_gradient)(
+        field, jnp.array([0.3]), jnp.array([0.4])
+    )
     assert float(h[0]) == 0.0 and float(hx[0]) == 0.0

@@ -62,7 +62,9 @@ def test_splatted_maps_converge_to_the_reference(ball, ball_reference):
     0.19, 0.090, 0.034 for 64, 128, 256 photons per side of the light's view."""
     errors = [
         jc.image_error(
-            jc.caustics_mapping(ball, photons=n, map_resolution=128, intersection="exact").image,
+            jc.internal.caustics_mapping(
+                ball, photons=n, map_resolution=128, intersection="exact"
+            ).image,
             ball_reference,
         )
         for n in (64, 128, 256)
@@ -79,7 +81,7 @@ def test_image_space_estimate_converges_with_iterations(ball):
     update is a fixed-point iteration; on a plane it contracts by ``sin^2`` of the ray's
     angle to the light). Measured on this ball (metres, median): 0.17 / 0.065 with no
     iteration, 0.025 / 0.014 after one (the paper's choice), about 1e-3 after four."""
-    view = jc.light_view(ball)
+    view = jc.internal.light_view(ball)
     window = raster_window(ball, view, 128)
     buffers = eqx.filter_jit(geometry_buffers)(ball, view, 128, window)
     errors = intersection_errors(ball, buffers, 48, iterations=(0, 1, 4))
@@ -97,7 +99,7 @@ def test_image_space_caustic_against_the_reference(ball, ball_reference):
     0.088 at 512 (the exact intersection: 0.034): the estimate's own error dominates,
     from photons near the ball's rim, where the rayGeo update contracts slowly (their
     landing points are off by 0.18 m median after 4 iterations, 0.004 m after 32)."""
-    image = jc.caustics_mapping(ball, photons=256, map_resolution=128, iterations=4).image
+    image = jc.internal.caustics_mapping(ball, photons=256, map_resolution=128, iterations=4).image
     assert jc.image_error(image, ball_reference) < 0.11
 
 
@@ -106,8 +108,8 @@ def test_adaptive_traversal_equals_the_dense_map(ball):
     through the ball (the footprint test discards no cluster the object touches): same
     image to rounding."""
     knobs = dict(photons=256, map_resolution=64, gbuffer_resolution=64)
-    dense = jc.caustics_mapping(ball, **knobs)
-    adaptive = jc.adaptive_caustic_map(ball, metric="traversal", **knobs)
+    dense = jc.internal.caustics_mapping(ball, **knobs)
+    adaptive = jc.internal.adaptive_caustic_map(ball, metric="traversal", **knobs)
     assert adaptive.stats["splatted"] == dense.stats["splatted"]
     # all levels counted, the tree generates a fraction of the dense grid's photons
     assert adaptive.stats["generated"] <= dense.stats["generated"] / 4
@@ -120,8 +122,8 @@ def test_paper_discard_test_loses_the_rim(ball):
     loses the ball's rim between coarse photons (1.8% relative L1 measured at 512^2 on
     a larger map; here 256^2), against the dense grid."""
     knobs = dict(photons=256, map_resolution=64, gbuffer_resolution=64)
-    dense = jc.caustics_mapping(ball, **knobs)
-    samples = jc.adaptive_caustic_map(ball, discard="samples", **knobs)
+    dense = jc.internal.caustics_mapping(ball, **knobs)
+    samples = jc.internal.adaptive_caustic_map(ball, discard="samples", **knobs)
     lost = float(jnp.abs(samples.image - dense.image).sum() / dense.image.sum())
     assert 0 < lost < 0.05
     assert samples.stats["splatted"] < dense.stats["splatted"]
@@ -133,8 +135,8 @@ def test_adaptive_counts_at_2048_equivalent(ball):
     fifth of the dense grid's photons (all levels counted), and the caustic-map error
     metric fewer still."""
     knobs = dict(photons=2048, map_resolution=256, gbuffer_resolution=256)
-    traversal = jc.adaptive_caustic_map(ball, metric="traversal", **knobs)
-    error = jc.adaptive_caustic_map(ball, metric="error", **knobs)
+    traversal = jc.internal.adaptive_caustic_map(ball, metric="traversal", **knobs)
+    error = jc.internal.adaptive_caustic_map(ball, metric="error", **knobs)
     dense = 2048 * 2048
     assert traversal.stats["generated"] <= dense / 5
     assert error.stats["generated"] < traversal.stats["generated"]
@@ -151,14 +153,14 @@ def test_batches_under_a_memory_limit(ball, metric):
     """A memory limit of a few clusters' photons: many batches, the same image to float
     rounding, and no batch's photon buffer over the limit."""
     knobs = dict(photons=256, map_resolution=64, gbuffer_resolution=64, metric=metric)
-    whole = jc.adaptive_caustic_map(ball, **knobs)
-    limit = 300 * jc.photon_bytes(1, 2 * 3 + 1, np.float64)  # sigma 1 texel: 7 x 7 splats
-    batched = jc.adaptive_caustic_map(ball, memory_limit=limit, **knobs)
+    whole = jc.internal.adaptive_caustic_map(ball, **knobs)
+    limit = 300 * jc.internal.photon_bytes(1, 2 * 3 + 1, np.float64)  # sigma 1 texel: 7 x 7 splats
+    batched = jc.internal.adaptive_caustic_map(ball, memory_limit=limit, **knobs)
     assert batched.stats["batches"] > 3 * whole.stats["batches"]
     assert batched.stats["peak_buffer_bytes"] <= limit
     assert whole.stats["peak_buffer_bytes"] > limit
     np.testing.assert_allclose(batched.image, whole.image, rtol=1e-10, atol=1e-12)
-    dense = jc.caustics_mapping(ball, photons=256, map_resolution=64, memory_limit=limit)
+    dense = jc.internal.caustics_mapping(ball, photons=256, map_resolution=64, memory_limit=limit)
     assert dense.stats["batches"] > 1 and dense.stats["peak_buffer_bytes"] <= limit
 
 
@@ -205,7 +207,7 @@ def test_hard_cases_stay_finite(case, dtype):
         knobs = dict(photons=128, map_resolution=32, gbuffer_resolution=64)
         return jnp.sum(method(s, **knobs).image ** 2)
 
-    value, grad = jax.value_and_grad(loss)(scene.generator.vertices, jc.caustics_mapping)
+    value, grad = jax.value_and_grad(loss)(scene.generator.vertices, jc.internal.caustics_mapping)
     assert np.isfinite(float(value)) and np.all(np.isfinite(np.asarray(grad)))
     assert grad.dtype == dtype
 
@@ -220,7 +222,7 @@ def test_adaptive_gradient_stays_finite_in_float32():
             jc.Mesh(vertices, scene.generator.faces), scene.light, scene.receiver, ior=1.5
         )
         knobs = dict(photons=128, map_resolution=32, gbuffer_resolution=64)
-        return jnp.sum(jc.adaptive_caustic_map(s, **knobs).image ** 2)
+        return jnp.sum(jc.internal.adaptive_caustic_map(s, **knobs).image ** 2)
 
     grad = jax.grad(loss)(scene.generator.vertices)
     assert grad.dtype == np.float32 and np.all(np.isfinite(np.asarray(grad)))
@@ -241,8 +243,10 @@ def test_image_space_refraction_drops_totally_reflected_photons():
         normals="flat",
         interfaces=6,
     )
-    r = jc.caustics_mapping(scene, photons=128, map_resolution=32)
-    exact = jc.caustics_mapping(scene, photons=128, map_resolution=32, intersection="exact")
+    r = jc.internal.caustics_mapping(scene, photons=128, map_resolution=32)
+    exact = jc.internal.caustics_mapping(
+        scene, photons=128, map_resolution=32, intersection="exact"
+    )
     assert r.stats["splatted"] < exact.stats["splatted"]
 
 
@@ -259,7 +263,9 @@ def test_gradient_matches_finite_differences():
         moved = jc.MeshScene(
             jc.Mesh(stretched, scene.generator.faces), scene.light, scene.receiver, ior=1.5
         )
-        image = jc.caustics_mapping(moved, photons=96, map_resolution=64, iterations=2).image
+        image = jc.internal.caustics_mapping(
+            moved, photons=96, map_resolution=64, iterations=2
+        ).image
         return jnp.sum((image - target) ** 2)
 
     grad = float(jax.grad(loss)(0.0))
@@ -273,13 +279,15 @@ def test_gradient_matches_finite_differences():
 # tests below stay
 @pytest.mark.slow
 def test_caustics_mapping_is_jit_compatible(ball):
-    image = jax.jit(lambda s: jc.caustics_mapping(s, photons=32, map_resolution=32).image)(ball)
-    eager = jc.caustics_mapping(ball, photons=32, map_resolution=32).image
+    image = jax.jit(lambda s: jc.internal.caustics_mapping(s, photons=32, map_resolution=32).image)(
+        ball
+    )
+    eager = jc.internal.caustics_mapping(ball, photons=32, map_resolution=32).image
     np.testing.assert_allclose(image, eager, rtol=1e-10, atol=1e-12)
     with pytest.raises(ValueError, match="outside jax.jit"):
-        jax.jit(lambda s: jc.adaptive_caustic_map(s, photons=128).image)(ball)
+        jax.jit(lambda s: jc.internal.adaptive_caustic_map(s, photons=128).image)(ball)
     with pytest.raises(ValueError, match="capacity"):
-        jc.adaptive_caustic_map(ball, photons=128, capacity=100)
+        jc.internal.adaptive_caustic_map(ball, photons=128, capacity=100)
 
 
 def test_render_dispatches_to_the_caustic_maps(ball):
@@ -291,7 +299,7 @@ def test_render_dispatches_to_the_caustic_maps(ball):
 
 def test_bad_arguments_raise_clear_errors(ball):
     with pytest.raises(ValueError, match="`scene` must be a MeshScene"):
-        jc.caustics_mapping("not a scene")
+        jc.internal.caustics_mapping("not a scene")
     lens = jc.LensScene(
         jc.HeightField(np.zeros((4, 4)), (0.0, 1.0, 0.0, 1.0), boundary="clamp"),
         jc.DirectionalLight.from_angles(0.0),
@@ -300,12 +308,12 @@ def test_bad_arguments_raise_clear_errors(ball):
         screen_distance=0.5,
     )
     with pytest.raises(ValueError, match="caustic_triangles"):
-        jc.adaptive_caustic_map(lens)
+        jc.internal.adaptive_caustic_map(lens)
     box = trimesh.creation.box(extents=(0.2, 0.2, 0.2))
     box.apply_translation([1.0, 1.0, 0.3])
     blocker = jc.Mesh.from_trimesh(box)
     with pytest.raises(ValueError, match="occluders"):
-        jc.caustics_mapping(
+        jc.internal.caustics_mapping(
             jc.MeshScene(ball.generator, ball.light, ball.receiver, occluders=[blocker])
         )
     for kwargs, name in [
@@ -322,14 +330,16 @@ def test_bad_arguments_raise_clear_errors(ball):
         (dict(discard="never"), "discard"),
     ]:
         with pytest.raises(ValueError, match=name):
-            jc.adaptive_caustic_map(ball, **kwargs)
+            jc.internal.adaptive_caustic_map(ball, **kwargs)
 
 
 def test_camera_image_shades_the_receiver(ball):
     """Seen from a camera straight above, the lit receiver far from the ball has the
     Lambertian radiance ``albedo / pi`` of unit irradiance; the ball's shadow is darker
     except where its caustic lands; off the receiver the image is black."""
-    result = jc.caustics_mapping(ball, photons=256, map_resolution=64, gbuffer_resolution=64)
+    result = jc.internal.caustics_mapping(
+        ball, photons=256, map_resolution=64, gbuffer_resolution=64
+    )
     camera = jc.PinholeCamera([0.0, 0.0, 8.0], [0.0, 0.0, 0.0], fov=40.0, shape=(60, 60))
     image = np.asarray(jc.camera_image(ball, result, camera, albedo=0.5))
     assert image[0, 0] == 0.0  # the corner ray misses the 4 m screen
@@ -346,8 +356,8 @@ def test_adaptive_capacity_runs_under_jit(ball):
     """The all-jit traversal (`capacity`) inside an outer `jax.jit`: the host-driven
     traversal's image."""
     knobs = dict(photons=128, map_resolution=32, gbuffer_resolution=64)
-    host = jc.adaptive_caustic_map(ball, **knobs)
-    outer = jax.jit(lambda s: jc.adaptive_caustic_map(s, capacity=2048, **knobs).image)
+    host = jc.internal.adaptive_caustic_map(ball, **knobs)
+    outer = jax.jit(lambda s: jc.internal.adaptive_caustic_map(s, capacity=2048, **knobs).image)
     np.testing.assert_allclose(outer(ball), host.image, rtol=1e-10, atol=1e-12)
 
 
@@ -357,9 +367,9 @@ def test_adaptive_traversal_all_under_jit(ball):
     `jnp.nonzero` compaction, batches in a scan): the same counts and image as the
     host-driven traversal, under a memory limit (batches of at most the limit)."""
     knobs = dict(photons=256, map_resolution=64, gbuffer_resolution=64)
-    host = jc.adaptive_caustic_map(ball, **knobs)
-    limit = 300 * jc.photon_bytes(1, 7, np.float64)
-    in_jit = jc.adaptive_caustic_map(ball, capacity=4096, memory_limit=limit, **knobs)
+    host = jc.internal.adaptive_caustic_map(ball, **knobs)
+    limit = 300 * jc.internal.photon_bytes(1, 7, np.float64)
+    in_jit = jc.internal.adaptive_caustic_map(ball, capacity=4096, memory_limit=limit, **knobs)
     for key in ("generated_per_level", "splatted_per_level", "refined_per_level"):
         assert in_jit.stats[key] == host.stats[key]
     assert in_jit.stats["peak_buffer_bytes"] <= limit
@@ -371,7 +381,7 @@ def test_adaptive_capacity_overflow_raises(ball):
     """At 512^2 equivalent the last level holds about 2500 clusters: a capacity of 1024
     (the first level's 32^2) overflows, and the error says so."""
     with pytest.raises(ValueError, match="`capacity` 1024 is too small"):
-        jc.adaptive_caustic_map(
+        jc.internal.adaptive_caustic_map(
             ball, photons=512, map_resolution=64, gbuffer_resolution=128, capacity=1024
         )
 
@@ -388,7 +398,9 @@ def test_gradient_with_respect_to_the_light_direction():
         t = jnp.radians(zenith_deg)
         light = jc.DirectionalLight(jnp.stack([jnp.sin(t), 0.0 * t, -jnp.cos(t)]))
         moved = jc.MeshScene(scene.generator, light, scene.receiver, ior=1.5)
-        image = jc.caustics_mapping(moved, photons=64, map_resolution=32, iterations=2).image
+        image = jc.internal.caustics_mapping(
+            moved, photons=64, map_resolution=32, iterations=2
+        ).image
         return jnp.sum((image - target) ** 2)
 
     grad = float(jax.grad(loss)(10.0))

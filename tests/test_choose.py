@@ -107,12 +107,12 @@ TABLE = {
 
 
 def test_picks_the_fastest_setting_within_the_tolerance_with_margin():
-    choice = jc.choose_method(water(), 0.11, table=TABLE)
+    choice = jc.internal.choose_method(water(), 0.11, table=TABLE)
     assert (choice.method, choice.knobs) == ("twopass", {"supersample": 1})
     # 0.05 * 2 (the default margin) > 0.06: the next setting
-    choice = jc.choose_method(water(), 0.06, table=TABLE)
+    choice = jc.internal.choose_method(water(), 0.06, table=TABLE)
     assert choice.knobs == {"supersample": 2} and choice.expected_error == 0.01
-    choice = jc.choose_method(water(), 0.06, table=TABLE, margin=1.0)
+    choice = jc.internal.choose_method(water(), 0.06, table=TABLE, margin=1.0)
     assert choice.knobs == {"supersample": 1}
     assert choice.candidates == 3 and choice.meeting == 3
     assert "twopass" in str(choice) and "0.05" in str(choice)
@@ -120,84 +120,86 @@ def test_picks_the_fastest_setting_within_the_tolerance_with_margin():
 
 def test_tolerance_below_every_setting_names_the_best_error():
     with pytest.raises(ValueError, match=r"smallest error is 0\.004"):
-        jc.choose_method(water(), 0.005, table=TABLE)
+        jc.internal.choose_method(water(), 0.005, table=TABLE)
 
 
 @pytest.mark.parametrize("bad", [0.0, -1.0, float("nan"), "small"])
 def test_bad_tolerance_is_named(bad):
     with pytest.raises(ValueError, match="tolerance"):
-        jc.choose_method(water(), bad, table=TABLE)
+        jc.internal.choose_method(water(), bad, table=TABLE)
 
 
 def test_margin_below_one_is_refused():
     with pytest.raises(ValueError, match="margin"):
-        jc.choose_method(water(), 0.1, margin=0.5, table=TABLE)
+        jc.internal.choose_method(water(), 0.1, margin=0.5, table=TABLE)
 
 
 def test_knobs_that_follow_the_resolution_and_the_expected_time_scale():
-    choice = jc.choose_method(lens((32, 24)), 0.05, table=TABLE)
+    choice = jc.internal.choose_method(lens((32, 24)), 0.05, table=TABLE)
     assert choice.knobs == {"photons": 64}  # 2 per pixel of the longer side
     assert choice.expected_time_s == pytest.approx(0.01 * 32 * 24 / 256)
     assert choice.table_time_s == 0.01 and choice.table_pixels == (16, 16)
 
 
 def test_method_restricts_the_choice_to_its_knobs():
-    choice = jc.choose_method(mesh_scene(ball()), 0.1, method="triangles", table=TABLE)
+    choice = jc.internal.choose_method(mesh_scene(ball()), 0.1, method="triangles", table=TABLE)
     assert choice.knobs == {"photons": 65}
     with pytest.raises(ValueError, match="`method`"):
-        jc.choose_method(water(), 0.1, method="triangles", table=TABLE)
+        jc.internal.choose_method(water(), 0.1, method="triangles", table=TABLE)
 
 
 def test_occlusion_is_never_given_to_a_method_that_cannot_do_it():
     occluded = mesh_scene(ball(), occluders=[jc.Mesh.from_trimesh(ball(z=1.8, radius=0.1))])
-    choice = jc.choose_method(occluded, 0.1, table=TABLE)
+    choice = jc.internal.choose_method(occluded, 0.1, table=TABLE)
     assert choice.method == "triangles"
     assert "occlu" in choice.excluded["caustics_mapping"]
     assert "occlu" in choice.excluded["spot_lights"]
-    assert jc.method_support("twopass", occluded) is not None
-    assert jc.method_support("triangles", occluded) is None
+    assert jc.internal.method_support("twopass", occluded) is not None
+    assert jc.internal.method_support("triangles", occluded) is None
 
 
 def test_a_cylinder_is_never_given_to_caustic_spot_lights():
     """Liu et al. Sect. 6: a cylinder focuses light on a moving line, not a point."""
-    assert jc.method_support("spot_lights", mesh_scene(ball())) is None
-    reason = jc.method_support("spot_lights", mesh_scene(cylinder()))
+    assert jc.internal.method_support("spot_lights", mesh_scene(ball())) is None
+    reason = jc.internal.method_support("spot_lights", mesh_scene(cylinder()))
     assert reason is not None and "sphere-like" in reason
-    choice = jc.choose_method(mesh_scene(cylinder()), 0.1, table=TABLE)
+    choice = jc.internal.choose_method(mesh_scene(cylinder()), 0.1, table=TABLE)
     assert choice.method == "caustics_mapping" and "spot_lights" in choice.excluded
     # the ball gets the (faster) spot lights
-    assert jc.choose_method(mesh_scene(ball()), 0.1, table=TABLE).method == "spot_lights"
+    assert jc.internal.choose_method(mesh_scene(ball()), 0.1, table=TABLE).method == "spot_lights"
 
 
 def test_elongated_ellipsoids_and_point_lights_are_not_given_to_spot_lights():
-    assert jc.method_support("spot_lights", ellipsoid_scene()) is None
-    assert "elongated" in jc.method_support("spot_lights", ellipsoid_scene((0.1, 0.1, 0.5)))
+    assert jc.internal.method_support("spot_lights", ellipsoid_scene()) is None
+    assert "elongated" in jc.internal.method_support(
+        "spot_lights", ellipsoid_scene((0.1, 0.1, 0.5))
+    )
     point = mesh_scene(ball())
     point = jc.MeshScene(
         point.generator, jc.PointLight([0.0, 0.0, 3.0]), point.receiver, ior=point.ior
     )
-    assert "parallel" in jc.method_support("spot_lights", point)
+    assert "parallel" in jc.internal.method_support("spot_lights", point)
 
 
 def test_two_pass_takes_water_only():
-    assert jc.method_support("twopass", water()) is None
+    assert jc.internal.method_support("twopass", water()) is None
     for scene in (lens(), mesh_scene(ball()), ellipsoid_scene()):
-        assert jc.method_support("twopass", scene) is not None
+        assert jc.internal.method_support("twopass", scene) is not None
 
 
 def test_moving_light_rows_render_through_the_mesh_and_skip_report_only_rows():
-    choice = jc.choose_method(ellipsoid_scene(), 0.07, table=TABLE)
+    choice = jc.internal.choose_method(ellipsoid_scene(), 0.07, table=TABLE)
     # the report-only spot-lights row (error 0.01, fastest) is not choosable
     assert choice.method == "triangles" and choice.as_mesh == {"subdivisions": 2}
     mesh = jc.methods.choose.as_mesh_scene(ellipsoid_scene(), 2)
     assert isinstance(mesh, jc.MeshScene) and mesh.generator.faces.shape == (320, 3)
-    assert jc.choose_method(ellipsoid_scene(), 0.13, table=TABLE).method == "spot_lights"
+    assert jc.internal.choose_method(ellipsoid_scene(), 0.13, table=TABLE).method == "spot_lights"
 
 
 def test_mirrors_have_no_table():
     mirror = mesh_scene(ball(), material="mirror")
     with pytest.raises(ValueError, match="mirror"):
-        jc.choose_method(mirror, 0.1, table=TABLE)
+        jc.internal.choose_method(mirror, 0.1, table=TABLE)
 
 
 def test_render_with_tolerance_runs_the_choice_and_reports_it(monkeypatch, caplog):
@@ -214,7 +216,7 @@ def test_render_with_tolerance_runs_the_choice_and_reports_it(monkeypatch, caplo
 
 
 def test_stored_table_has_every_kind_and_runnable_methods():
-    table = jc.accuracy_table()
+    table = jc.internal.accuracy_table()
     assert set(table["kinds"]) == {"water", "lens", "mesh", "moving_light"}
     for kind, entry in table["kinds"].items():
         assert len(entry["pixels"]) == 2

@@ -24,7 +24,7 @@ def test_render_water_frames(tmp_path, capsys):
         "caustics_0001.exr",
         "caustics_0001.png",
     ]
-    frames = [jc.read_exr(out / f"caustics_{k:04d}.exr") for k in range(2)]
+    frames = [jc.io.read_exr(out / f"caustics_{k:04d}.exr") for k in range(2)]
     for image in frames:
         assert image.shape == (36, 48) and image.dtype == np.float32
         assert np.all(np.isfinite(image)) and image.min() >= 0.0
@@ -48,7 +48,7 @@ def test_small_window_warns_about_missed_flux(tmp_path, capsys):
     report = capsys.readouterr()
     assert "N = 1" in report.out and "M = 0" in report.out
     assert "WARNING" in report.err and "--samples-x auto" in report.err
-    assert jc.read_exr(tmp_path / "caustics_0000.exr").mean() < 0.99  # light was lost
+    assert jc.io.read_exr(tmp_path / "caustics_0000.exr").mean() < 0.99  # light was lost
 
 
 # on request (slow), for the default run's 10-minute budget: dispersion and Fresnel
@@ -58,7 +58,7 @@ def test_dispersion_gives_colour_and_fresnel_loses_light(tmp_path):
     argv = ["render", "water", "--size", "24x18", "--output", str(tmp_path), "--quiet"]
     argv += ["--extent", "2x1.5", "--heightfield-size", "32x24", "--zenith", "0"]
     assert main([*argv, "--ior", "1.331,1.335,1.340", "--fresnel"]) == 0
-    image = jc.read_exr(tmp_path / "caustics_0000.exr")
+    image = jc.io.read_exr(tmp_path / "caustics_0000.exr")
     assert image.shape == (18, 24, 3)
     # Fresnel reflects about 2% at near-normal incidence on water.
     assert np.all((image.mean(axis=(0, 1)) > 0.95) & (image.mean(axis=(0, 1)) < 0.995))
@@ -141,56 +141,64 @@ def test_console_script_renders(tmp_path):
     run = subprocess.run(cmd, capture_output=True, text=True, timeout=120)
     assert run.returncode == 0, run.stderr
     assert "missed flux" in run.stdout
-    assert jc.read_exr(tmp_path / "caustics_0000.exr").shape == (12, 16)
+    assert jc.io.read_exr(tmp_path / "caustics_0000.exr").shape == (12, 16)
     run = subprocess.run(
         [sys.executable, "-m", "jaxcaustics", "--version"], capture_output=True, text=True
     )
     assert run.returncode == 0 and run.stdout.strip() == f"jaxcaustics {jc.__version__}"
 
 
-def test_readme_python_example_runs(tmp_path, monkeypatch):
-    readme = (Path(__file__).resolve().parent.parent / "README.md").read_text()
-    code = readme.split("```python\n", 1)[1].split("```", 1)[0]
-    monkeypatch.chdir(tmp_path)
+ROOT = Path(__file__).resolve().parent.parent
+
+
+def python_blocks(page: str) -> list[str]:
+    """The ```python code blocks of `page` (a path from the repository root), in order."""
+    text = (ROOT / page).read_text()
+    return [block.split("```", 1)[0] for block in text.split("```python\n")[1:]]
+
+
+def run_block(page: str, index: int) -> dict:
+    """Run the `index`-th Python block of `page` in a fresh namespace and return it."""
     namespace: dict = {}
-    exec(compile(code, "README.md", "exec"), namespace)
+    exec(compile(python_blocks(page)[index], page, "exec"), namespace)
+    return namespace
+
+
+def test_readme_python_example_runs(tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    namespace = run_block("README.md", 0)
     assert namespace["image"].shape == (300, 400)
-    assert float(namespace["stats"]["missed_flux_fraction"][0]) < 1e-6  # "(here 0)"
+    assert float(namespace["stats"]["missed_flux_fraction"][0]) < 1e-6  # "(here none)"
     assert (tmp_path / "caustics.png").is_file()
 
 
-def test_readme_tolerance_example_runs(tmp_path, monkeypatch):
-    """The README's `render(scene, tolerance=...)` lines, run after its first example
-    (whose scene they render)."""
-    readme = (Path(__file__).resolve().parent.parent / "README.md").read_text()
-    blocks = readme.split("```python\n")
+def test_getting_started_sea_is_the_readme_example():
+    """Getting started repeats the README's example (run above) word for word."""
+    assert python_blocks("README.md")[0] in python_blocks("docs/getting-started.md")
+
+
+def test_accuracy_guide_tolerance_example_runs(tmp_path, monkeypatch):
+    """The `render(scene, tolerance=...)` example of docs/guides/accuracy.md (the README's
+    sea)."""
     monkeypatch.chdir(tmp_path)
-    namespace: dict = {}
-    for block in blocks[1:3]:
-        exec(compile(block.split("```", 1)[0], "README.md", "exec"), namespace)
+    namespace = run_block("docs/guides/accuracy.md", 0)
     choice = namespace["stats"]["choice"]
     assert choice.method == "twopass" and choice.expected_error * choice.margin <= 0.02
     assert namespace["image"].shape == (300, 400)
 
 
-def test_readme_glass_example_runs(tmp_path, monkeypatch):
-    readme = (Path(__file__).resolve().parent.parent / "README.md").read_text()
-    code = readme.split("```python\n")[3].split("```", 1)[0]
+def test_triangles_page_glass_example_runs(tmp_path, monkeypatch):
     monkeypatch.chdir(tmp_path)
-    namespace: dict = {}
-    exec(compile(code, "README.md", "exec"), namespace)
+    namespace = run_block("docs/methods/triangles.md", 0)
     assert namespace["image"].shape == (128, 128)
     assert namespace["result"].image.shape == (64, 64)
     assert float(namespace["result"].image.max()) > 1.0  # the ball focuses light
 
 
 @pytest.mark.slow
-def test_readme_design_example_runs(tmp_path, monkeypatch):
-    readme = (Path(__file__).resolve().parent.parent / "README.md").read_text()
-    code = readme.split("```python\n")[4].split("```", 1)[0]
+def test_design_guide_example_runs(tmp_path, monkeypatch):
     monkeypatch.chdir(tmp_path)
-    namespace: dict = {}
-    exec(compile(code, "README.md", "exec"), namespace)
+    namespace = run_block("docs/guides/design.md", 0)
     assert (tmp_path / "lens" / "lens.stl").is_file()
     # the exported solid, rendered by the reference, is close to the target. Bound: the
     # 64 x 64 design's own error is about 0.05 (examples/design_lens.py: 0.049 at 32

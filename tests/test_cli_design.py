@@ -6,9 +6,9 @@ import numpy as np
 import pytest
 import trimesh
 
-from jaxcaustics import read_exr
 from jaxcaustics.cli.flags import length
 from jaxcaustics.cli.main import main
+from jaxcaustics.io import read_exr
 from jaxcaustics.io.images import write_png_linear16
 
 ARGS = ["design", "--size", "16", "--levels", "8,16", "--steps", "3", "--width", "80mm"]

@@ -240,7 +240,7 @@ def _far_sphere() -> jc.Ellipsoid:
 
 def _lights(resolution=6):
     """Two hand-made caustic spot lights above the screen (no fit: cheap)."""
-    return jc.SpotLights(
+    return jc.internal.SpotLights(
         [[0.0, 0.0, 1.0], [0.3, -0.2, 1.0]],
         [[0.0, 0.0, -1.0], [0.0, 0.0, -1.0]],
         [[1.0, 0.0, 0.0], [1.0, 0.0, 0.0]],
@@ -255,37 +255,41 @@ def _lights(resolution=6):
 
 
 def two_pass(s):
-    return jc.two_pass(s, samples_x=1, channels_y=0, hit_iterations=0).image
+    return jc.internal.two_pass(s, samples_x=1, channels_y=0, hit_iterations=0).image
 
 
 def triangles(s):
-    return jc.caustic_triangles(s, photons=7, window=4).image
+    return jc.internal.caustic_triangles(s, photons=7, window=4).image
 
 
 def distance_map(s):
     options = CubeMapOptions(resolution=8, linear_steps=8, secant_iterations=1, window=4)
-    return jc.caustic_triangles(s, photons=5, visibility="distance_map", cube_map=options).image
+    return jc.internal.caustic_triangles(
+        s, photons=5, visibility="distance_map", cube_map=options
+    ).image
 
 
 def caustics_mapping(s):
-    return jc.caustics_mapping(s, photons=8, map_resolution=16).image
+    return jc.internal.caustics_mapping(s, photons=8, map_resolution=16).image
 
 
 def caustics_mapping_exact(s):
-    return jc.caustics_mapping(s, photons=8, map_resolution=16, intersection="exact").image
+    return jc.internal.caustics_mapping(s, photons=8, map_resolution=16, intersection="exact").image
 
 
 def adaptive(s):
-    return jc.adaptive_caustic_map(s, photons=16, base=8, map_resolution=16, capacity=16).image
+    return jc.internal.adaptive_caustic_map(
+        s, photons=16, base=8, map_resolution=16, capacity=16
+    ).image
 
 
 def exit_rays(s):
-    return jc.trace_exit_rays(s, 6).energy
+    return jc.internal.trace_exit_rays(s, 6).energy
 
 
 def spot_light_render(s):
     """`spot_lights` with given lights (its render stage: one per channel)."""
-    return jc.spot_lights(s, lights=_lights(), samples=1).image
+    return jc.internal.spot_lights(s, lights=_lights(), samples=1).image
 
 
 # ------------------------------------------------------------ effects match the traces
@@ -539,7 +543,11 @@ def test_occluders_where_a_method_cannot_test_them_are_refused():
     """Caustic maps and mesh spot lights do not test occlusion: a scene with occluders is
     refused with a clear error rather than rendered as if they were absent."""
     scene = _ball(occluders=[_far_box()])
-    for method in (jc.caustics_mapping, jc.adaptive_caustic_map, jc.spot_lights):
+    for method in (
+        jc.internal.caustics_mapping,
+        jc.internal.adaptive_caustic_map,
+        jc.internal.spot_lights,
+    ):
         with pytest.raises(ValueError, match="occluders"):
             method(scene)
 
@@ -644,7 +652,7 @@ def test_equal_indices_give_the_single_index_image_per_channel():
     scene = _sphere(ior=(1.5, 1.5))
     one = exit_rays(_sphere(ior=1.5))
     for c in range(2):
-        _close(jc.trace_exit_rays(scene, 6, channel=c).energy, one)
+        _close(jc.internal.trace_exit_rays(scene, 6, channel=c).energy, one)
 
 
 def test_far_occluders_change_nothing():
@@ -667,8 +675,8 @@ def test_far_occluders_change_no_mesh_image():
 
 def test_interfaces_no_path_needs_change_nothing():
     """A sphere's paths need two interfaces: four give the same exit rays."""
-    two = jc.trace_exit_rays(_sphere(interfaces=2), 6)
-    four = jc.trace_exit_rays(_sphere(interfaces=4), 6)
+    two = jc.internal.trace_exit_rays(_sphere(interfaces=2), 6)
+    four = jc.internal.trace_exit_rays(_sphere(interfaces=4), 6)
     for a, b in ((two.energy, four.energy), (two.origin, four.origin)):
         _close(a, b)
     assert float(jnp.sum(two.energy > 0)) > 0
@@ -705,8 +713,8 @@ def test_equal_indices_give_the_single_index_mesh_images():
         for c in range(2):
             _close(pair[..., c], single)
     scene = _sphere(ior=(1.5, 1.5))
-    single = jc.spot_lights(_sphere(ior=1.5), rays_per_axis=16, samples=1).image
-    pair = jc.spot_lights(scene, rays_per_axis=16, samples=1).image
+    single = jc.internal.spot_lights(_sphere(ior=1.5), rays_per_axis=16, samples=1).image
+    pair = jc.internal.spot_lights(scene, rays_per_axis=16, samples=1).image
     for c in range(2):
         _close(pair[..., c], single)
 

@@ -186,7 +186,7 @@ def test_export_files_round_trip(tmp_path):
         assert loaded.volume == pytest.approx(solid.volume, rel=1e-6)
 
     z = lens_height_map(scene)
-    exr = jc.read_exr(paths["height_exr"])
+    exr = jc.io.read_exr(paths["height_exr"])
     assert exr.dtype == np.float32 and exr.shape == z.shape
     np.testing.assert_allclose(exr, z, rtol=1e-7)
     meta = json.loads(paths["height_json"].read_text())

@@ -38,7 +38,7 @@ def test_a_picture_that_fails_while_written_leaves_the_earlier_one(tmp_path, mon
     mid-write left half a picture in place of the earlier one."""
     path = tmp_path / f"caustic.{writer}"
     earlier = np.linspace(0.0, 1.0, 64).reshape(8, 8)
-    write = jc.write_png if writer == "png" else jc.write_exr
+    write = jc.write_png if writer == "png" else jc.io.write_exr
     write(path, earlier)
     before = path.read_bytes()
 

@@ -112,6 +112,7 @@ STAGES = [
     ("methods.twopass", "methods.triangles", "methods.caustic_map", "methods.spot_lights"),
     ("methods",),
     ("inverse",),
+    ("internal",),  # the building blocks, no promise
     ("",),  # the package's __init__: the public names
     ("cli",),  # the command, a user of the public names
     ("__main__",),

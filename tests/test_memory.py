@@ -109,7 +109,7 @@ def test_caustics_mapping_at_16384_squared_photons_stays_under_the_limit(interse
     scene = ball_scene()
     buffers = _view_and_buffers(scene, 256)
     window = 2 * math.ceil(3 * 0.5) + 1  # sigma 'auto': max(0.5, 64 / 16384)
-    per_photon = jc.photon_bytes(1, window, np.float64)
+    per_photon = jc.internal.photon_bytes(1, window, np.float64)
     batch = limit // per_photon  # as caustics_mapping sizes it
     assert 1 < 16384**2 // batch
 
@@ -177,7 +177,7 @@ def test_auto_window_is_the_same_in_bands():
     )
     assert banded.stats["bands"] > 1
     tiers = banded.stats["tiers"]
-    assert tiers[0][0] == jc.triangle_window(whole.photons, scene.receiver)
+    assert tiers[0][0] == jc.internal.triangle_window(whole.photons, scene.receiver)
     largest = max(batch * triangle_bytes(window) for window, _, batch in tiers)
     assert banded.stats["peak_buffer_bytes"] - largest == band_bytes(6 * 21, 1)
     scale = float(np.abs(np.asarray(whole.image)).max())
@@ -191,7 +191,7 @@ def test_caustics_mapping_batches_equal_one_batch():
     scene = ball_scene()
     knobs = dict(photons=48, map_resolution=32, gbuffer_resolution=48)
     whole = caustics_mapping(scene, **knobs)
-    per_photon = jc.photon_bytes(1, 5, np.float64)  # sigma 2/3 texel: 5 x 5 splats
+    per_photon = jc.internal.photon_bytes(1, 5, np.float64)  # sigma 2/3 texel: 5 x 5 splats
     batched = caustics_mapping(scene, memory_limit=700 * per_photon, **knobs)
     assert whole.stats["batches"] == 1
     assert batched.stats["batches"] == math.ceil(48 * 48 / 700)

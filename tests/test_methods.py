@@ -14,11 +14,11 @@ from jaxcaustics.methods.registry import METHODS
 
 APERTURE = (0.0, 0.1, 0.0, 0.1)
 FUNCTIONS = {
-    jc.TwoPass: jc.two_pass,
-    jc.CausticTriangles: jc.caustic_triangles,
-    jc.CausticsMapping: jc.caustics_mapping,
-    jc.AdaptiveCausticMap: jc.adaptive_caustic_map,
-    jc.SpotLightMethod: jc.spot_lights,
+    jc.TwoPass: jc.internal.two_pass,
+    jc.CausticTriangles: jc.internal.caustic_triangles,
+    jc.CausticsMapping: jc.internal.caustics_mapping,
+    jc.AdaptiveCausticMap: jc.internal.adaptive_caustic_map,
+    jc.SpotLightMethod: jc.internal.spot_lights,
 }
 
 
@@ -130,7 +130,7 @@ def test_a_method_instance_goes_through_jit_with_its_knobs_static():
 def test_auto_knobs_are_sized_for_the_scenes():
     scenes = [water(), water(shape=(8, 8))]
     sized = jc.TwoPass(samples_x="auto", channels_y="auto").sized_for(scenes)
-    assert (sized.samples_x, sized.channels_y) == jc.auto_window(scenes[0])
+    assert (sized.samples_x, sized.channels_y) == jc.internal.auto_window(scenes[0])
     fixed = jc.TwoPass(samples_x=5, channels_y=4)
     assert not fixed.needs_sizing() and fixed.sized_for(scenes) is fixed
 
@@ -164,4 +164,4 @@ def test_support_is_the_methods_own():
     assert jc.CausticTriangles().support(occluded) is None
     for name, cls in METHODS.items():
         for scene in (water(), lens(), ball_mesh(), ellipsoid()):
-            assert jc.method_support(name, scene) == cls().support(scene)
+            assert jc.internal.method_support(name, scene) == cls().support(scene)

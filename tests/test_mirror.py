@@ -212,6 +212,9 @@ def blob_mirror():
     return target, problem
 
 
+# 25-40 s (a design and a 512^2 reference trace): on request, for the default run's time
+# budget; benchmarks/results/mirror.md judges mirror designs at 128^2 by the reference
+@pytest.mark.slow
 def test_a_mirror_design_matches_its_target_by_the_reference():
     """A 24^2 blob under light 30 degrees from the mirror's normal, the screen 1 m away
     facing the reflected beam, judged by the reference (512^2 photons). Measured: 0.012

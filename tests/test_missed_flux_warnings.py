@@ -79,7 +79,8 @@ def test_light_landing_off_the_receiver_is_not_a_miss_of_the_method():
 
 def test_spot_lights_that_do_not_carry_the_light_warn():
     """One fitted spot light for a glass ball under oblique light leaves out part of
-    the light leaving the ball (0.14 in the accuracy report); sixteen carry nearly all."""
+    the light leaving the ball (0.14 in the accuracy report); sixteen carry nearly all.
+    64^2 rays (not the default 256^2) see it as well, in a third of the time."""
     scene = jc.EllipsoidScene(
         jc.Ellipsoid.sphere(np.asarray((0.0, 0.0, 1.0)), 0.3),
         jc.DirectionalLight.from_angles(20.0, 30.0),
@@ -87,7 +88,9 @@ def test_spot_lights_that_do_not_carry_the_light_warn():
         ior=1.5,
     )
     with pytest.warns(UserWarning, match="spot lights do not carry it"):
-        _, stats = jc.render(scene, "spot_lights", max_lights=1, return_stats=True)
+        _, stats = jc.render(
+            scene, "spot_lights", rays_per_axis=64, max_lights=1, return_stats=True
+        )
     assert float(np.max(np.asarray(stats["missed_flux_fraction"]))) > MISSED_FLUX_WARNING
 
 

@@ -21,7 +21,7 @@ UP = jnp.array([0.0, 0.0, 1.0])
 @settings(max_examples=50, deadline=None)
 @given(theta=st.floats(0.0, 1.5), eta=st.floats(0.3, 3.0))
 def test_refract_obeys_snell(theta, eta):
-    t, tir = jc.refract(_incident(theta), UP, eta)
+    t, tir = jc.internal.refract(_incident(theta), UP, eta)
     sin_t2 = eta**2 * np.sin(theta) ** 2
     assert bool(tir) == (sin_t2 > 1.0)
     np.testing.assert_allclose(float(jnp.linalg.norm(t)), 1.0, atol=1e-12)
@@ -30,41 +30,43 @@ def test_refract_obeys_snell(theta, eta):
         np.testing.assert_allclose(float(t[0]), eta * np.sin(theta), atol=1e-12)
         assert float(t[1]) == 0.0 and float(t[2]) <= 0.0
     else:
-        np.testing.assert_allclose(np.asarray(t), np.asarray(jc.reflect(_incident(theta), UP)))
+        np.testing.assert_allclose(
+            np.asarray(t), np.asarray(jc.internal.reflect(_incident(theta), UP))
+        )
 
 
 def test_refract_flips_a_normal_on_the_wrong_side():
     d = _incident(0.4)
-    t1, _ = jc.refract(d, UP, 0.75)
-    t2, _ = jc.refract(d, -UP, 0.75)
+    t1, _ = jc.internal.refract(d, UP, 0.75)
+    t2, _ = jc.internal.refract(d, -UP, 0.75)
     np.testing.assert_allclose(np.asarray(t1), np.asarray(t2))
 
 
 def test_reflect_mirror():
-    r = jc.reflect(_incident(0.3), UP)
+    r = jc.internal.reflect(_incident(0.3), UP)
     np.testing.assert_allclose(np.asarray(r), [np.sin(0.3), 0.0, np.cos(0.3)], atol=1e-15)
 
 
 def test_fresnel_known_values():
     n = 1.5
-    normal = float(jc.fresnel_transmittance(jnp.array(1.0), 1 / n))
+    normal = float(jc.internal.fresnel_transmittance(jnp.array(1.0), 1 / n))
     np.testing.assert_allclose(normal, 1 - ((n - 1) / (n + 1)) ** 2, rtol=1e-12)
     # Brewster angle: p-polarised reflectance vanishes, so R = R_s / 2
     tb = np.arctan(n)
     cos_t = np.sqrt(1 - (np.sin(tb) / n) ** 2)
     rs = ((np.cos(tb) - n * cos_t) / (np.cos(tb) + n * cos_t)) ** 2
-    got = float(jc.fresnel_transmittance(jnp.array(np.cos(tb)), 1 / n))
+    got = float(jc.internal.fresnel_transmittance(jnp.array(np.cos(tb)), 1 / n))
     np.testing.assert_allclose(got, 1 - rs / 2, rtol=1e-12)
-    assert float(jc.fresnel_transmittance(jnp.array(0.0), 1 / n)) == 0.0  # grazing
-    assert float(jc.fresnel_transmittance(jnp.array(0.2), 1.5)) == 0.0  # TIR
+    assert float(jc.internal.fresnel_transmittance(jnp.array(0.0), 1 / n)) == 0.0  # grazing
+    assert float(jc.internal.fresnel_transmittance(jnp.array(0.2), 1.5)) == 0.0  # TIR
 
 
 def test_fresnel_is_symmetric_in_direction():
     """Stokes reciprocity: the transmittance is the same both ways through an interface."""
     n, theta = 1.333, 0.6
     cos_t = np.sqrt(1 - (np.sin(theta) / n) ** 2)
-    a = float(jc.fresnel_transmittance(jnp.array(np.cos(theta)), 1 / n))
-    b = float(jc.fresnel_transmittance(jnp.array(cos_t), n))
+    a = float(jc.internal.fresnel_transmittance(jnp.array(np.cos(theta)), 1 / n))
+    b = float(jc.internal.fresnel_transmittance(jnp.array(cos_t), n))
     np.testing.assert_allclose(a, b, rtol=1e-12)
 
 
@@ -77,8 +79,8 @@ def test_values_and_gradients_finite_everywhere(dtype, eta):
 
     def total(theta):
         d = jnp.stack([jnp.sin(theta), 0.0 * theta, -jnp.cos(theta)])
-        t, _ = jc.refract(d, UP.astype(dtype), eta)
-        return jnp.sum(t) + jc.fresnel_transmittance(jnp.cos(theta), eta)
+        t, _ = jc.internal.refract(d, UP.astype(dtype), eta)
+        return jnp.sum(t) + jc.internal.fresnel_transmittance(jnp.cos(theta), eta)
 
     values = jax.vmap(total)(thetas)
     grads = jax.vmap(jax.grad(total))(thetas)

@@ -29,7 +29,7 @@ def flat_lens(outline, light=None, heights=None):
 def test_an_elliptical_blank_passes_the_light_of_its_ellipse_alone():
     scene = flat_lens("ellipse")
     ref = trace_lens(scene, (256, 320))
-    image = np.asarray(jc.caustic_triangles(scene, photons=(257, 321)).image)
+    image = np.asarray(jc.internal.caustic_triangles(scene, photons=(257, 321)).image)
     # a flat slab under vertical light: its footprint is the ellipse, pi / 4 of the box
     assert ref.mean() == pytest.approx(np.pi / 4, rel=2e-3)
     assert image.mean() == pytest.approx(np.pi / 4, rel=2e-3)
@@ -126,7 +126,7 @@ def test_a_star_blank_passes_the_light_of_the_star_alone():
     outline = jc.Polygon(star())
     scene = flat_lens(outline.lens_outline)
     ref = trace_lens(scene, (256, 320))
-    image = np.asarray(jc.caustic_triangles(scene, photons=(257, 321)).image)
+    image = np.asarray(jc.internal.caustic_triangles(scene, photons=(257, 321)).image)
     fraction = polygon_area(np.asarray(outline.lens_outline)) / 4  # of the aperture
     assert ref.mean() == pytest.approx(fraction, rel=3e-3)
     assert image.mean() == pytest.approx(fraction, rel=3e-3)

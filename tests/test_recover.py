@@ -63,7 +63,7 @@ def case():
 def lm_result(case, tmp_path_factory):
     """Levenberg-Marquardt from the caustic stored in an EXR file at 3x its scale."""
     path = tmp_path_factory.mktemp("recover") / "target.exr"
-    jc.write_exr(path, 3.0 * case[1])
+    jc.io.write_exr(path, 3.0 * case[1])
     return solve(path)
 
 

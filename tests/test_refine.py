@@ -11,7 +11,9 @@ APERTURE = (-0.05, 0.05, -0.05, 0.05)
 
 
 def lens(pixels=24):
-    bump = jc.gaussian_bump((32, 32), APERTURE, center=(0.01, -0.01), sigma=0.02, amplitude=0.002)
+    bump = jc.internal.gaussian_bump(
+        (32, 32), APERTURE, center=(0.01, -0.01), sigma=0.02, amplitude=0.002
+    )
     return jc.LensScene(
         jc.HeightField(bump, APERTURE, "clamp"),
         jc.DirectionalLight.from_angles(15.0, 30.0),
@@ -41,7 +43,7 @@ def test_refined_and_coarsened_are_inverse_steps_of_the_accuracy_knob():
 
 def test_the_estimate_is_the_difference_of_two_settings_and_not_optimistic(reference):
     scene = lens()
-    result, estimate = jc.estimate_error(scene, jc.CausticTriangles(photons=33))
+    result, estimate = jc.internal.estimate_error(scene, jc.CausticTriangles(photons=33))
     assert estimate.coarse.photons == (17, 17) and estimate.fine.photons == 33
     coarse = jc.render(scene, estimate.coarse)
     assert estimate.difference == pytest.approx(jc.image_error(coarse, result.image), rel=1e-9)
@@ -75,11 +77,11 @@ def test_refine_options_are_checked():
     with pytest.raises(ValueError, match="budget_s"):
         jc.render(lens(), tolerance=0.1, refine=True, budget_s=-1.0)
     with pytest.raises(ValueError, match="`method` must be a Method"):
-        jc.estimate_error(lens(), "triangles")
+        jc.internal.estimate_error(lens(), "triangles")
     with pytest.raises(ValueError, match="`subdivisions` is for an EllipsoidScene"):
-        jc.estimate_error(lens(), jc.CausticTriangles(photons=9), subdivisions=2)
+        jc.internal.estimate_error(lens(), jc.CausticTriangles(photons=9), subdivisions=2)
     with pytest.raises(ValueError, match="`subdivisions`"):
-        jc.estimate_error(lens(), jc.CausticTriangles(photons=9), subdivisions=-1)
+        jc.internal.estimate_error(lens(), jc.CausticTriangles(photons=9), subdivisions=-1)
 
 
 def sea(zenith, pixels=24):

@@ -147,7 +147,7 @@ def test_under_jit_a_nan_or_an_upward_light_is_an_error_not_a_black_image():
 def test_a_batch_with_one_bad_scene_is_an_error():
     good = water()
     bad = eqx.tree_at(lambda s: s.rest_depth, good, jnp.array(jnp.nan))
-    stacked = jc.stack_scenes([good, good])
+    stacked = jc.devices.stack_scenes([good, good])
     stacked = eqx.tree_at(
         lambda s: s.rest_depth, stacked, jnp.stack([good.rest_depth, bad.rest_depth])
     )

@@ -21,7 +21,7 @@ def sphere_scene(zenith=20.0, azimuth=0.0, shape=(48, 48), occluders=()):
 
 def test_render_dispatches_and_checks_the_scene():
     scene = sphere_scene(shape=(8, 8))
-    lights = jc.SpotLights(
+    lights = jc.internal.SpotLights(
         [[0.0, 0.0, 1.0]],
         [[0.0, 0.0, -1.0]],
         [[1.0, 0.0, 0.0]],
@@ -40,11 +40,11 @@ def test_render_dispatches_and_checks_the_scene():
         occluders=[jc.Ellipsoid.sphere([0.0, 0.0, 0.5], 0.1).to_mesh(1)],
     )
     with pytest.raises(ValueError, match="occluders"):
-        jc.spot_lights(mesh)
+        jc.internal.spot_lights(mesh)
     with pytest.raises(ValueError, match="lights"):
-        jc.spot_lights(scene, lights=lights, max_lights=3)
+        jc.internal.spot_lights(scene, lights=lights, max_lights=3)
     with pytest.raises(ValueError, match="scene"):
-        jc.spot_lights(object())
+        jc.internal.spot_lights(object())
 
 
 @pytest.mark.slow
@@ -56,7 +56,7 @@ def test_sphere_caustic_agrees_with_the_reference_at_a_fitted_direction():
     the sharp rim of the ball's caustic by a few centimetres (Liu et al. report visual,
     not numerical, agreement). Measured: 0.057 (60-degree bundles)."""
     scene = sphere_scene()
-    result = jc.spot_lights(scene, rays_per_axis=128, max_lights=8)
+    result = jc.internal.spot_lights(scene, rays_per_axis=128, max_lights=8)
     ref = reference.trace_ellipsoid(scene, 1024)
     error = jc.image_error(result.image, ref)
     assert error < 0.08, error
@@ -87,10 +87,10 @@ def test_sphere_caustic_from_interpolated_lights_agrees_with_the_reference():
         lit = jc.EllipsoidScene(
             scene.generator, jc.DirectionalLight(direction), scene.receiver, ior=1.5
         )
-        lights = jc.interpolate_spot_lights(table, jnp.asarray(direction))
-        image = jc.spot_lights(lit, lights=lights).image
+        lights = jc.internal.interpolate_spot_lights(table, jnp.asarray(direction))
+        image = jc.internal.spot_lights(lit, lights=lights).image
         ref = reference.trace_ellipsoid(lit, 1024)
-        direct = jc.spot_lights(lit, rays_per_axis=64, max_lights=4).image
+        direct = jc.internal.spot_lights(lit, rays_per_axis=64, max_lights=4).image
         error, direct_error = jc.image_error(image, ref), jc.image_error(direct, ref)
         assert error < 0.08, (direction, error)
         assert error < direct_error + 0.02, (direction, error, direct_error)
@@ -112,7 +112,7 @@ def test_mesh_made_with_trimesh_against_the_mesh_reference():
         jc.PlaneReceiver((-1.2, 0.8, -1.0, 1.0), (48, 48)),
         ior=1.5,
     )
-    result = jc.spot_lights(scene, rays_per_axis=48, max_lights=4)
+    result = jc.internal.spot_lights(scene, rays_per_axis=48, max_lights=4)
     ref = reference.trace_mesh(scene, 512)
     error = jc.image_error(result.image, ref)
     assert error < 0.1, error
@@ -124,7 +124,7 @@ def test_a_scene_the_method_does_not_model_is_rendered_with_a_warning():
     off the reference, without a word)."""
     import warnings
 
-    lights = jc.SpotLights(
+    lights = jc.internal.SpotLights(
         [[0.0, 0.0, 1.0]], [[0.0, 0.0, -1.0]], [[1.0, 0.0, 0.0]],
         [0.5], [0.0], [0.3], np.ones((1, 8, 8)),
     )  # fmt: skip
@@ -134,7 +134,7 @@ def test_a_scene_the_method_does_not_model_is_rendered_with_a_warning():
         jc.PlaneReceiver((-1.0, 1.0, -1.0, 1.0), (8, 8)),
         ior=1.5,
     )
-    assert jc.method_support("spot_lights", rod) is not None
+    assert jc.internal.method_support("spot_lights", rod) is not None
     with pytest.warns(UserWarning, match="'spot_lights' does not model this scene.*elongated"):
         jc.render(rod, "spot_lights", lights=lights, samples=1)
     with warnings.catch_warnings():

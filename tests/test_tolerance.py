@@ -41,7 +41,9 @@ def scene_and_reference(kind, dense=False):
 
 
 def tolerances(kind):
-    rows = [r for r in jc.accuracy_table()["kinds"][kind]["rows"] if r.get("choosable", True)]
+    rows = [
+        r for r in jc.internal.accuracy_table()["kinds"][kind]["rows"] if r.get("choosable", True)
+    ]
     return bench().tolerances_for(rows, jc.methods.choose.DEFAULT_MARGIN)
 
 

@@ -72,7 +72,7 @@ def total_flux(result):
 @pytest.mark.parametrize("reconstruction", ["exact", "gouraud"])
 def test_flat_slab_gives_the_light_it_receives(reconstruction):
     scene = lens_scene(np.zeros((8, 8)))
-    result = jc.caustic_triangles(scene, photons=33, reconstruction=reconstruction)
+    result = jc.internal.caustic_triangles(scene, photons=33, reconstruction=reconstruction)
     image = np.asarray(result.image)
     inner = image[8:-8, 8:-8]  # the aperture covers pixels 4..43
     np.testing.assert_allclose(inner, 1.0, atol=1e-12)
@@ -83,7 +83,7 @@ def test_flat_slab_gives_the_light_it_receives(reconstruction):
 
 def test_flat_slab_fresnel_is_the_product_of_both_faces():
     scene = lens_scene(np.zeros((8, 8)), fresnel=True, ior=1.5)
-    image = np.asarray(jc.caustic_triangles(scene, photons=17).image)
+    image = np.asarray(jc.internal.caustic_triangles(scene, photons=17).image)
     t = 1.0 - ((1.5 - 1.0) / (1.5 + 1.0)) ** 2  # normal incidence, each face
     np.testing.assert_allclose(image[8:-8, 8:-8], t * t, rtol=1e-12)
 
@@ -99,7 +99,7 @@ def test_oblique_flat_slab_shifts_the_aperture_by_snell():
         screen=(-0.01, 0.15, -0.03, 0.13),
         shape=(80, 80),
     )
-    result = jc.caustic_triangles(scene, photons=33)
+    result = jc.internal.caustic_triangles(scene, photons=33)
     image = np.asarray(result.image)
     e = np.asarray(scene.receiver.extent)
     xs = e[0] + (np.arange(80) + 0.5) * (e[1] - e[0]) / 80
@@ -127,7 +127,9 @@ def test_sharp_focus_is_finite_in_value_and_gradient(dtype, reconstruction):
 
     def peak(h):
         s = eqx_replace_heights(scene, h)
-        return jc.caustic_triangles(s, photons=33, window=48, reconstruction=reconstruction).image
+        return jc.internal.caustic_triangles(
+            s, photons=33, window=48, reconstruction=reconstruction
+        ).image
 
     image = np.asarray(peak(jnp.asarray(heights)))
     assert np.all(np.isfinite(image))
@@ -155,7 +157,9 @@ def test_fold_overs_keep_their_flux(dtype, reconstruction):
 
     def render(h):
         s = eqx_replace_heights(scene, h)
-        return jc.caustic_triangles(s, photons=33, window=32, reconstruction=reconstruction)
+        return jc.internal.caustic_triangles(
+            s, photons=33, window=32, reconstruction=reconstruction
+        )
 
     result = render(jnp.asarray(heights))
     # all but those of the outer ring, where the clamped bicubic turns flat beyond the
@@ -187,7 +191,7 @@ def test_gradients_match_finite_differences_away_from_folds(rng):
 
     def loss(h):
         s = eqx_replace_heights(scene, h)
-        return jnp.sum(weights * jc.caustic_triangles(s, photons=21, window=6).image)
+        return jnp.sum(weights * jc.internal.caustic_triangles(s, photons=21, window=6).image)
 
     h0 = jnp.asarray(heights)
     grad = jax.grad(loss)(h0)
@@ -203,7 +207,7 @@ def test_point_light_over_a_flat_slab_matches_the_inverse_square_law():
     scene = lens_scene(
         np.zeros((8, 8)), light=light, ior=1.0 + 1e-12, thickness=0.01, screen_distance=0.2
     )
-    image = np.asarray(jc.caustic_triangles(scene, photons=65).image)
+    image = np.asarray(jc.internal.caustic_triangles(scene, photons=65).image)
     # index ~1: the slab does nothing; the centre pixel gets I cos(theta) / r^2
     e = np.asarray(scene.receiver.extent)
     centre = e[0] + (24 + 0.5) * (e[1] - e[0]) / 48
@@ -225,7 +229,7 @@ def sphere_scene(radius=0.5, subdivisions=2, *, ior=1.5, shape=(48, 48), **kw):
 
 def test_sphere_of_index_one_casts_its_shadow_disc_of_light():
     scene = sphere_scene(ior=1.0)
-    result = jc.caustic_triangles(scene, photons=49)
+    result = jc.internal.caustic_triangles(scene, photons=49)
     image = np.asarray(result.image)
     xs = -1 + (np.arange(48) + 0.5) * 2 / 48
     r = np.hypot(*np.meshgrid(xs, xs))
@@ -234,7 +238,7 @@ def test_sphere_of_index_one_casts_its_shadow_disc_of_light():
 
 
 def test_refractor_with_one_interface_renders_nothing():
-    result = jc.caustic_triangles(sphere_scene(interfaces=1), photons=17)
+    result = jc.internal.caustic_triangles(sphere_scene(interfaces=1), photons=17)
     assert float(np.abs(np.asarray(result.image)).max()) == 0.0
     assert not np.asarray(result.photons.valid).any()
 
@@ -251,7 +255,7 @@ def test_total_internal_reflection_in_the_sphere_is_finite(dtype):
 
     def brightness(v):
         s = eqx.tree_at(lambda s: s.generator.vertices, scene, v)
-        return jnp.sum(jc.caustic_triangles(s, photons=25, window=24).image ** 2)
+        return jnp.sum(jc.internal.caustic_triangles(s, photons=25, window=24).image ** 2)
 
     value, grad = jax.value_and_grad(brightness)(vertices)
     assert np.isfinite(float(value)) and float(value) > 0
@@ -259,7 +263,7 @@ def test_total_internal_reflection_in_the_sphere_is_finite(dtype):
 
 
 def test_mesh_flux_is_accounted_for():
-    result = jc.caustic_triangles(sphere_scene(), photons=33)
+    result = jc.internal.caustic_triangles(sphere_scene(), photons=33)
     landed = np.asarray(result.image).sum() * (2 / 48) ** 2
     missed = float(result.missed_flux_fraction[0])
     assert landed == pytest.approx(total_flux(result)[0] * (1 - missed), rel=1e-10)
@@ -272,12 +276,14 @@ def test_auto_window_draws_in_tiers_the_one_window_image(reconstruction):
     """window='auto' draws the narrow triangles in narrower windows (and skips the
     invalid ones): the image of the widest window for all, to rounding."""
     scene = sphere_scene(light=jc.DirectionalLight.from_angles(20.0))
-    tiered = jc.caustic_triangles(scene, photons=33, reconstruction=reconstruction)
+    tiered = jc.internal.caustic_triangles(scene, photons=33, reconstruction=reconstruction)
     tiers = tiered.stats["tiers"]
     windows = [w for w, _, _ in tiers]
     assert len(tiers) > 1 and windows == sorted(windows, reverse=True)
     assert sum(n for _, n, _ in tiers) < 2 * 32 * 32  # photons missing the ball: skipped
-    one = jc.caustic_triangles(scene, photons=33, reconstruction=reconstruction, window=windows[0])
+    one = jc.internal.caustic_triangles(
+        scene, photons=33, reconstruction=reconstruction, window=windows[0]
+    )
     assert one.stats["tiers"] == ((windows[0], 2 * 32 * 32, 2 * 32 * 32),)
     scale = float(np.asarray(one.image).max())
     np.testing.assert_allclose(tiered.image, one.image, rtol=0, atol=1e-12 * scale)
@@ -337,7 +343,7 @@ def test_tiers_are_the_cheapest_that_hold_every_triangle(rng):
 )
 def test_bad_knobs_name_the_argument(knobs, match):
     with pytest.raises(ValueError, match=match):
-        jc.caustic_triangles(lens_scene(np.zeros((4, 4))), **knobs)
+        jc.internal.caustic_triangles(lens_scene(np.zeros((4, 4))), **knobs)
 
 
 def test_render_dispatches_by_scene_type():
@@ -345,12 +351,12 @@ def test_render_dispatches_by_scene_type():
     image, stats = jc.render(scene, photons=9, return_stats=True)
     assert image.shape == scene.receiver.shape and "missed_flux_fraction" in stats
     with pytest.raises(ValueError, match="scene"):
-        jc.caustic_triangles(object())
+        jc.internal.caustic_triangles(object())
 
 
 def test_dispersion_gives_one_channel_per_index():
     scene = lens_scene(plano_convex(16, 0.3), thickness=0.02, ior=(1.49, 1.51, 1.53))
-    image = np.asarray(jc.caustic_triangles(scene, photons=17).image)
+    image = np.asarray(jc.internal.caustic_triangles(scene, photons=17).image)
     assert image.shape == (48, 48, 3)
     assert not np.allclose(image[..., 0], image[..., 2])
 
@@ -363,7 +369,7 @@ def test_mesh_gradients_match_finite_differences(rng):
 
     def loss(v):
         s = eqx.tree_at(lambda s: s.generator.vertices, scene, v)
-        return jnp.sum(weights * jc.caustic_triangles(s, photons=17, window=16).image)
+        return jnp.sum(weights * jc.internal.caustic_triangles(s, photons=17, window=16).image)
 
     v0 = jnp.asarray(scene.generator.vertices)
     grad = jax.grad(loss)(v0)
@@ -386,7 +392,7 @@ def test_degenerate_triangles_keep_their_flux_and_stay_finite(dtype):
     position[2:4, 2:4, :2] = 0.5  # a cell collapsed to a point
     position[4, :, 1] = 0.7  # row 4 pushed onto row 5's neighbour line: slivers
     position[5, :, 1] = 0.7
-    ph = jc.Photons(
+    ph = jc.internal.Photons(
         jnp.asarray(position[None], dtype),
         jnp.zeros((1, n, n, 3), dtype),
         jnp.ones((1, n, n), dtype),
@@ -441,11 +447,11 @@ def test_distance_map_projection_does_not_leak_behind_occluders():
 
     scene = occluded_sphere_scene()
     shadow = deep_shadow()
-    exact = np.asarray(jc.caustic_triangles(scene, photons=33).image)
-    tested = jc.caustic_triangles(
+    exact = np.asarray(jc.internal.caustic_triangles(scene, photons=33).image)
+    tested = jc.internal.caustic_triangles(
         scene, photons=33, visibility="distance_map", cube_map=CubeMapOptions(resolution=64)
     )
-    naive = jc.caustic_triangles(
+    naive = jc.internal.caustic_triangles(
         scene,
         photons=33,
         visibility="distance_map",
@@ -472,9 +478,9 @@ def test_distance_map_pipeline_agrees_with_exact_visibility():
     from jaxcaustics.methods.triangles.method import CubeMapOptions
 
     scene = sphere_scene(shape=(64, 64), light=jc.DirectionalLight.from_angles(10.0, 0.0))
-    exact = np.asarray(jc.caustic_triangles(scene, photons=33).image)
+    exact = np.asarray(jc.internal.caustic_triangles(scene, photons=33).image)
     cube = np.asarray(
-        jc.caustic_triangles(
+        jc.internal.caustic_triangles(
             scene, photons=33, visibility="distance_map", cube_map=CubeMapOptions(resolution=64)
         ).image
     )
@@ -484,9 +490,9 @@ def test_distance_map_pipeline_agrees_with_exact_visibility():
 
 def test_distance_map_visibility_needs_a_mesh_scene():
     with pytest.raises(ValueError, match="visibility"):
-        jc.caustic_triangles(lens_scene(np.zeros((4, 4))), visibility="distance_map")
+        jc.internal.caustic_triangles(lens_scene(np.zeros((4, 4))), visibility="distance_map")
     with pytest.raises(ValueError, match="visibility"):
-        jc.caustic_triangles(lens_scene(np.zeros((4, 4))), visibility="cube")
+        jc.internal.caustic_triangles(lens_scene(np.zeros((4, 4))), visibility="cube")
 
 
 def test_the_auto_window_fits_the_receiver():

@@ -47,7 +47,7 @@ def sphere_reference():
 @pytest.mark.parametrize("zenith, tolerance", [(0.0, 0.005), (30.0, 0.005)])
 def test_exact_triangles_agree_with_reference_on_a_smooth_lens(zenith, tolerance):
     ref = lens_reference(zenith)
-    image = np.asarray(jc.caustic_triangles(smooth_lens(zenith), photons=129).image)
+    image = np.asarray(jc.internal.caustic_triangles(smooth_lens(zenith), photons=129).image)
     assert jc.image_error(image, ref) < tolerance
     assert image.sum() == pytest.approx(ref.sum(), rel=0.01)  # total flux within 1%
 
@@ -60,7 +60,9 @@ def test_gouraud_triangles_agree_with_reference():
     so the test uses 4 x 4 samples and allows 0.03 and 2% of flux."""
     ref = lens_reference(0.0)
     scene = smooth_lens(0.0)
-    result = jc.caustic_triangles(scene, photons=129, reconstruction="gouraud", supersample=4)
+    result = jc.internal.caustic_triangles(
+        scene, photons=129, reconstruction="gouraud", supersample=4
+    )
     image = np.asarray(result.image)
     assert jc.image_error(image, ref) < 0.03
     assert image.sum() == pytest.approx(ref.sum(), rel=0.02)
@@ -73,7 +75,7 @@ def test_gouraud_triangles_agree_with_reference():
 def test_triangles_agree_with_reference_on_a_glass_sphere():
     ref = sphere_reference()
     scene = sphere_scene(shape=(64, 64))
-    image = np.asarray(jc.caustic_triangles(scene, photons=129).image)
+    image = np.asarray(jc.internal.caustic_triangles(scene, photons=129).image)
     assert jc.image_error(image, ref) < 0.01
     assert image.sum() == pytest.approx(ref.sum(), rel=0.01)
 
@@ -88,7 +90,7 @@ def test_triangles_beat_the_best_splat_radius_at_equal_photon_count(photons):
     (see `benchmarks/bench_triangles.py`). The test asks for 2x."""
     scene = smooth_lens(0.0)
     ref = lens_reference(0.0)
-    result = jc.caustic_triangles(scene, photons=photons)
+    result = jc.internal.caustic_triangles(scene, photons=photons)
     triangles = jc.image_error(result.image, ref, blur=0.0)
     splats = {
         sigma: jc.image_error(
@@ -157,6 +159,6 @@ def test_triangles_agree_with_reference_on_more_scenes(
     scene = make()
     trace = reference.trace_lens if isinstance(scene, jc.LensScene) else reference.trace_mesh
     ref = trace(scene, photons_ref)
-    image = np.asarray(jc.caustic_triangles(scene, photons=129).image)
+    image = np.asarray(jc.internal.caustic_triangles(scene, photons=129).image)
     assert jc.image_error(image, ref) < tolerance
     assert image.sum() == pytest.approx(ref.sum(), rel=flux_tolerance)

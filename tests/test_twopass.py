@@ -30,7 +30,7 @@ EXT = (0.0, 1.0, 0.0, 0.75)  # 48 x 64 pixels of 1/64 m
 
 
 def bump(shape=(48, 64), extent=EXT, amplitude=0.01, sigma=0.08):
-    return np.asarray(jc.gaussian_bump(shape, extent, sigma=sigma, amplitude=amplitude))
+    return np.asarray(jc.internal.gaussian_bump(shape, extent, sigma=sigma, amplitude=amplitude))
 
 
 def sines(shape=(48, 64), extent=EXT, scale=1.0):
@@ -127,7 +127,7 @@ def _rotated(scene, rotation):
 
 def off_centre_bump():
     return np.asarray(
-        jc.gaussian_bump((48, 64), EXT, center=(0.3, 0.45), sigma=0.08, amplitude=0.01)
+        jc.internal.gaussian_bump((48, 64), EXT, center=(0.3, 0.45), sigma=0.08, amplitude=0.01)
     )
 
 
@@ -188,7 +188,7 @@ def test_auto_window_catches_light_displaced_16_pixels():
     """
     heights = bump(STRONG["shape"], STRONG["extent"], amplitude=0.04, sigma=STRONG["sigma"])
     scene = make_scene(heights, STRONG["extent"], depth=4.0)
-    assert jc.auto_window(scene) == (33, 32)
+    assert jc.internal.auto_window(scene) == (33, 32)
     ref = reference.trace_water(scene, photons_per_axis=16)
     small, small_stats = jc.render(scene, samples_x=7, channels_y=6, return_stats=True)
     auto, auto_stats = jc.render(scene, samples_x="auto", return_stats=True)
@@ -470,10 +470,11 @@ def test_auto_window_under_jit_says_what_to_do():
     scene = make_scene(sines((9, 11)), shape=(9, 11))
     for transform in (jax.jit, jax.vmap):
         batch = scene if transform is jax.jit else jax.tree_util.tree_map(lambda x: x[None], scene)
-        with pytest.raises(ValueError, match="auto_window"):
+        with pytest.raises(ValueError, match="method_for"):
             transform(lambda s: jc.render(s))(batch)  # the default window is "auto"
-    n, m = jc.auto_window(scene)
-    image = jax.jit(lambda s: jc.render(s, samples_x=n, channels_y=m))(scene)
+    method = jc.method_for(scene)  # what the message says to call
+    assert (method.samples_x, method.channels_y) == jc.internal.auto_window(scene)
+    image = jax.jit(lambda s: jc.render(s, method))(scene)
     np.testing.assert_allclose(np.asarray(image), np.asarray(jc.render(scene, samples_x="auto")))
 
 
@@ -481,7 +482,7 @@ def test_default_window_under_grad_is_a_constant():
     """Under `grad` the scene's values are known, so the default "auto" window works
     and gives the gradient of the render with that window."""
     scene = make_scene(sines((9, 11)), shape=(9, 11), zenith=40.0)
-    n, m = jc.auto_window(scene)
+    n, m = jc.internal.auto_window(scene)
 
     def loss(h, **knobs):
         changed = eqx_set(scene, h, scene.rest_depth, scene.light.direction)
@@ -505,7 +506,7 @@ def test_larger_maps_agree_tightly_with_a_dense_reference():
     heights = np.asarray(jc.sine_sum((128, 128), extent, terms=terms))
     scene = make_scene(heights, extent, zenith=30.0, azimuth=20.0)
     ref = reference.trace_water(scene, photons_per_axis=32)
-    n, m = jc.auto_window(scene)
+    n, m = jc.internal.auto_window(scene)
     assert periodic_error(jc.render(scene, samples_x=n, channels_y=m), ref) < 0.025
     assert periodic_error(jc.render(scene, samples_x=n, channels_y=m, supersample=4), ref) < 0.005
 
@@ -521,7 +522,7 @@ def test_gradient_at_flat_water_is_a_descent_direction():
     heights = np.zeros((16, 16))
     scene = make_scene(heights, zenith=20.0, depth=0.5)
     target = np.asarray(
-        jc.two_pass(
+        jc.internal.two_pass(
             make_scene(bump((16, 16), amplitude=0.002), zenith=20.0, depth=0.5),
             samples_x=5,
             channels_y=4,
@@ -530,7 +531,7 @@ def test_gradient_at_flat_water_is_a_descent_direction():
 
     def loss(h):
         s = eqx.tree_at(lambda s: s.surface.heights, scene, h)
-        return jnp.sum((jc.two_pass(s, samples_x=5, channels_y=4).image - target) ** 2)
+        return jnp.sum((jc.internal.two_pass(s, samples_x=5, channels_y=4).image - target) ** 2)
 
     h0 = jnp.asarray(heights)
     grad = jax.grad(loss)(h0)
@@ -540,9 +541,10 @@ def test_gradient_at_flat_water_is_a_descent_direction():
 
 
 def test_defaults_are_accurate_under_grazing_light():
-    """The README's sea (at half its wave height: with 2 mm waves at 80 degrees the
-    reference's own ray/surface intersection does not converge) under light 80 degrees
-    from vertical, rendered as a new user would: ``render(scene)``.
+    """The sea of the README's example (and of docs/getting-started.md), at half its wave
+    height (with 2 mm waves at 80 degrees the reference's own ray/surface intersection
+    does not converge), under light 80 degrees from vertical, rendered as a new user
+    would: ``render(scene)``.
 
     Measured against this 12-photon-per-axis reference (8 photons differ from it by
     0.0039): the defaults (window sized from the scene, 2 x 2 samples) 0.0073, the
