@@ -32,7 +32,7 @@ grids) are stored as ``{"per_pixel": f}``: ``round(f * max(rows, cols))``
 (`resolve_knobs`).
 
 To regenerate ``jaxcaustics/data/accuracy.json``, with ``benchmarks/results/accuracy.md``
-and ``accuracy.png``, run the full benchmark (no arguments, about 30 minutes on 2 cores)::
+and ``accuracy.png``, run the full benchmark (no arguments, about 6 minutes on 2 cores)::
 
     python benchmarks/bench_accuracy.py
 
@@ -57,9 +57,7 @@ import numpy as np
 
 import jaxcaustics as jc
 from jaxcaustics import reference
-from jaxcaustics.methods.choose import as_mesh_scene as _as_mesh_scene
-from jaxcaustics.methods.choose import resolve_knobs
-from jaxcaustics.methods.registry import METHODS
+from jaxcaustics.internal import METHODS, as_mesh_scene, resolve_knobs
 
 sys.path.insert(0, str(Path(__file__).parent))  # the harness beside this script
 from harness import environment, git_commit, load, once, pick, timed  # noqa: E402
@@ -282,7 +280,7 @@ def table_knobs(method: str, knobs: dict, pixels: int) -> dict:
 def scene_for_row(scene, row: dict):
     """The scene a table row renders: `scene` itself, or as a mesh (``as_mesh``)."""
     if row.get("as_mesh"):
-        return _as_mesh_scene(scene, row["as_mesh"]["subdivisions"])
+        return as_mesh_scene(scene, row["as_mesh"]["subdivisions"])
     return scene
 
 
@@ -325,11 +323,11 @@ def transfers(method: str, knobs: dict) -> bool:
 
 
 def estimate_of(scene, method: str, knobs: dict, as_mesh) -> dict:
-    """The method's own error estimate (`jc.estimate_error`: this setting against its
+    """The method's own error estimate (`jc.internal.estimate_error`: this setting against its
     next coarser one, with one subdivision fewer for an ellipsoid's mesh) and whether it
     is this setting's (``False``: at the coarsest, the estimate of the next finer one)."""
     instance = METHODS[method].from_knobs(**knobs)
-    _, estimate = jc.estimate_error(scene, instance, subdivisions=as_mesh)
+    _, estimate = jc.internal.estimate_error(scene, instance, subdivisions=as_mesh)
     return dict(estimate=estimate.error, estimate_of_row=bool(estimate.fine == instance))
 
 
@@ -374,7 +372,7 @@ def table_row(scene, truth, settings, config) -> dict:
     direction = scene.light.unit_direction
 
     def frame():
-        lights = jc.interpolate_spot_lights(table, direction)
+        lights = jc.internal.interpolate_spot_lights(table, direction)
         return jc.render(scene, "spot_lights", lights=lights)
 
     t = timed(frame, repeats=config["repeats"], budget_s=config["budget_s"])
@@ -604,7 +602,7 @@ def markdown(table: dict) -> str:
         " median of `runs` calls after a first one (at least 3; fewer than 5 once they took"
         " over 10 s), `jax.block_until_ready`; `compile s`: the first call minus the median."
         " `estimate`: the method's own estimate of its error on this scene"
-        " (`jc.estimate_error`: the difference between this setting and the next coarser"
+        " (`jc.internal.estimate_error`: the difference between this setting and the next coarser"
         " one of its accuracy knob; `(finer)`: at the coarsest, the estimate for the next"
         " finer setting), which `render(scene, tolerance=t)` refines with where it was"
         " measured reliable; how far to trust it on held-out scenes:"

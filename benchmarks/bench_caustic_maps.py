@@ -232,7 +232,7 @@ def dense_rows(scene, truth, grids, map_resolution, repeats):
         tried = {}  # factor -> (error, first call s, result)
 
         def call(f, n=n):
-            return jc.caustics_mapping(scene, photons=n, sigma=f * map_resolution / n)
+            return jc.internal.caustics_mapping(scene, photons=n, sigma=f * map_resolution / n)
 
         def attempt(f, tried=tried, call=call):
             first, result = once(call, f)
@@ -259,7 +259,7 @@ def dense_exact_rows(scene, truth, grids, sigmas, repeats):
         sigma = sigmas[n]
 
         def call(n=n, sigma=sigma):
-            return jc.caustics_mapping(scene, photons=n, sigma=sigma, intersection="exact")
+            return jc.internal.caustics_mapping(scene, photons=n, sigma=sigma, intersection="exact")
 
         t = timing(call, repeats)
         rows.append(_map_row(DENSE_EXACT, n, t, truth, sigma=sigma, knobs=f"sigma {sigma:g}"))
@@ -272,7 +272,7 @@ def adaptive_rows(scene, truth, grids, metric, check_from, sigmas, repeats):
         sigma = sigmas[n]
 
         def call(n=n, sigma=sigma):
-            return jc.adaptive_caustic_map(
+            return jc.internal.adaptive_caustic_map(
                 scene, photons=n, metric=metric, check_from=check_from, sigma=sigma
             )
 
@@ -286,7 +286,7 @@ def adaptive_rows(scene, truth, grids, metric, check_from, sigmas, repeats):
 def triangle_rows(scene, truth, grids, repeats):
     rows = []
     for n in grids:
-        t = timing(lambda n=n: jc.caustic_triangles(scene, photons=n), repeats)
+        t = timing(lambda n=n: jc.internal.caustic_triangles(scene, photons=n), repeats)
         result = t.out
         valid = int(np.asarray(result.photons.valid).any(axis=0).sum())
         missed = float(np.asarray(result.missed_flux_fraction)[0])
@@ -661,8 +661,8 @@ def main(argv=None) -> None:
         quick=args.quick,
         uptime_before=uptime(),
         map_resolution=2 * PIXELS,
-        iterations=default_of(jc.caustics_mapping, "iterations"),
-        discard=default_of(jc.adaptive_caustic_map, "discard"),
+        iterations=default_of(jc.internal.caustics_mapping, "iterations"),
+        discard=default_of(jc.internal.adaptive_caustic_map, "discard"),
         config=config,
     )
     print(f"device: {meta['device']}; {meta['uptime_before']}", flush=True)

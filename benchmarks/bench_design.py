@@ -59,9 +59,9 @@ MITSUBA = (426.0, 0.27)  # quoted from the issue (200 Adam steps on 2 cores), no
 def target():
     from skimage import data
 
-    from jaxcaustics.inverse.numerics import area_average as _area_average
+    from jaxcaustics.internal import area_average
 
-    return _area_average(data.camera().astype(float), (128, 128))
+    return area_average(data.camera().astype(float), (128, 128))
 
 
 def result_name(result) -> str:
@@ -79,9 +79,7 @@ def one(name: str, quick: bool) -> dict:
     import jax
     import numpy as np
 
-    from jaxcaustics import reference
-    from jaxcaustics.inverse.design import design_lens
-    from jaxcaustics.inverse.verify import relative_l2
+    from jaxcaustics import design_lens, reference, relative_l2
 
     kwargs = {**ROWS[name][1], **(QUICK if quick else {})}
     t = target()

@@ -51,9 +51,9 @@ def target(name: str):
     if name == "camera":
         from skimage import data
 
-        from jaxcaustics.inverse.numerics import area_average as _area_average
+        from jaxcaustics.internal import area_average
 
-        return _area_average(data.camera().astype(float), (128, 128))
+        return area_average(data.camera().astype(float), (128, 128))
     return np.asarray(targets.TARGETS[name]())
 
 
@@ -90,8 +90,8 @@ def one(row: str) -> dict:
     import jax
     import numpy as np
 
-    from jaxcaustics import HeightField, LensScene, export_lens, read_exr
-    from jaxcaustics.inverse.design import design_lens
+    from jaxcaustics import HeightField, LensScene, design_lens, export_lens
+    from jaxcaustics.io import read_exr
     from jaxcaustics.reference import trace_lens
 
     parts = row.split("-")

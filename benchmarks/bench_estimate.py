@@ -6,7 +6,7 @@ a focusing bump in water, a lens slab, a glass blob, ball and torus, and an elli
 under two light directions):
 
 1. **Reliability.** For every setting of the kind's accuracy table that the scene allows,
-   `jc.estimate_error` renders it with its next coarser setting and estimates the finer
+   `jc.internal.estimate_error` renders it with its next coarser setting and estimates the finer
    image's error; the true error is the finer image against a dense reference (relative
    L1 after a 1-pixel blur, `image_error`). ``true / estimate`` above 1 is an optimistic
    estimate; the issue asks for at most 1.5 on every scene. Where the setting can be
@@ -41,8 +41,13 @@ import numpy as np  # noqa: E402
 import trimesh  # noqa: E402
 
 import jaxcaustics as jc  # noqa: E402
-from jaxcaustics.methods.choose import allowed_rows, as_mesh_scene, resolve_knobs  # noqa: E402
-from jaxcaustics.methods.registry import method_class  # noqa: E402
+from jaxcaustics.internal import (  # noqa: E402
+    METHODS,
+    allowed_rows,
+    as_mesh_scene,
+    method_class,
+    resolve_knobs,
+)
 
 sys.path.insert(0, str(Path(__file__).parent))  # the harness beside this script
 from bench_tolerance import held_out_scenes  # noqa: E402
@@ -89,7 +94,9 @@ def scenes(pixels: int) -> dict:
             water_knobs,
         )
     ext = (0.0, 1.0, 0.0, 1.0)
-    bump = jc.gaussian_bump((pixels, pixels), ext, center=(0.5, 0.5), sigma=0.15, amplitude=0.01)
+    bump = jc.internal.gaussian_bump(
+        (pixels, pixels), ext, center=(0.5, 0.5), sigma=0.15, amplitude=0.01
+    )
     focusing = _water(jc.HeightField(bump, ext, "clamp"), 20.0, water.receiver)
     out["focusing bump"] = ("water", focusing, water_knobs)
     out["lens"] = ("lens", *held["lens"])
@@ -122,7 +129,7 @@ def method_for(scene, row: dict, table_pixels):
 
 
 def reliability(name, kind, scene, ref, quick: bool, log) -> list[dict]:
-    table = jc.accuracy_table()["kinds"][kind]
+    table = jc.internal.accuracy_table()["kinds"][kind]
     rows = [r for r in table["rows"] if r.get("choosable", True)]
     allowed, _ = allowed_rows(scene, rows)
     if quick:
@@ -132,7 +139,7 @@ def reliability(name, kind, scene, ref, quick: bool, log) -> list[dict]:
         method, subdivisions = method_for(scene, row, table["pixels"])
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
-            result, estimate = jc.estimate_error(scene, method, subdivisions=subdivisions)
+            result, estimate = jc.internal.estimate_error(scene, method, subdivisions=subdivisions)
             fine_sub = estimate.fine_subdivisions
             target = scene if fine_sub is None else as_mesh_scene(scene, fine_sub)
             timing = timed(lambda m=estimate.fine, s=target: m(s).image, repeats=3)
@@ -168,7 +175,7 @@ def _coarser_difference(scene, estimate) -> float | None:
     sub = estimate.coarse_subdivisions
     if estimate.coarse.coarsened() is None or sub == 0:
         return None
-    _, coarser = jc.estimate_error(scene, estimate.coarse, subdivisions=sub)
+    _, coarser = jc.internal.estimate_error(scene, estimate.coarse, subdivisions=sub)
     return coarser.difference
 
 
@@ -268,7 +275,7 @@ def _largest_ratios(reliable: list[dict]) -> list[str]:
     whether refining uses that estimate."""
     lines = ["| method | settings | largest ratio | at | refining uses it |"]
     lines.append("|---|--:|--:|---|---|")
-    for cls in jc.methods.registry.METHODS.values():
+    for cls in METHODS.values():
         for settings in (2, 3):
             mine = [
                 r

@@ -44,7 +44,9 @@ def scenes() -> dict:
     receiver = jc.PlaneReceiver(extent, shape)
     out = {}
     for height in (0.0025, 0.01, 0.04):
-        bump = jc.gaussian_bump(shape, extent, center=(0.5, 0.5), sigma=0.15, amplitude=height)
+        bump = jc.internal.gaussian_bump(
+            shape, extent, center=(0.5, 0.5), sigma=0.15, amplitude=height
+        )
         for zenith in (20.0, 60.0):
             surface = jc.HeightField(bump, extent, "clamp")
             out[f"bump {1000 * height:g} mm, {zenith:g} deg"] = _water(surface, zenith, receiver)
@@ -63,7 +65,9 @@ def measure(log=print) -> list[dict]:
         for supersample in (4, 8):
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore")  # the missed light is in the estimate
-                result, estimate = jc.estimate_error(scene, jc.TwoPass(supersample=supersample))
+                result, estimate = jc.internal.estimate_error(
+                    scene, jc.TwoPass(supersample=supersample)
+                )
                 order, three = three_settings(_coarser_difference(scene, estimate), estimate)
             true = jc.image_error(np.asarray(result.image), ref)
             rows.append(

@@ -29,7 +29,6 @@ import trimesh
 
 import jaxcaustics as jc
 from jaxcaustics import reference
-from jaxcaustics.trace import intersect as _intersect
 
 sys.path.insert(0, str(Path(__file__).parent))  # the harness beside this script
 from harness import environment, once, timed, write_results  # noqa: E402
@@ -68,14 +67,10 @@ def main() -> None:
     rows = []
     compile_s, tree_s, tree_image = timed_render(lambda: jc.render(scene, "triangles"))
     rows.append(("tree", compile_s, tree_s, jc.image_error(tree_image, truth)))
-    saved = _intersect.BRUTE_FORCE_FACES
-    _intersect.BRUTE_FORCE_FACES = 10**9
-    try:
+    with jc.internal.brute_force_limit(10**9):
         compile_s, brute_s, brute_image = timed_render(
             lambda: jc.render(scene, "triangles"), repeats=1
         )
-    finally:
-        _intersect.BRUTE_FORCE_FACES = saved
     rows.append(("brute force", compile_s, brute_s, jc.image_error(brute_image, truth)))
     difference = float(np.abs(tree_image - brute_image).max() / np.abs(brute_image).max())
     lines += [

@@ -86,7 +86,7 @@ def one(row: str) -> dict:
         paths = jc.export_lens(
             d.scene, tmp, thickness=THICKNESS if mirror else None, formats=("stl",)
         )
-        z_mm = jc.read_exr(paths["height_exr"]).astype(float)
+        z_mm = jc.io.read_exr(paths["height_exr"]).astype(float)
         sidecar = json.loads(paths["height_json"].read_text())
     surface = jc.HeightField(
         z_mm[1::2, 1::2] / 1000.0 - THICKNESS, prob.outline.extent, sidecar["boundary"]

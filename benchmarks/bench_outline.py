@@ -40,7 +40,7 @@ def target(name: str):
     if name == "camera":
         from skimage import data
 
-        from jaxcaustics.inverse.numerics import area_average
+        from jaxcaustics.internal import area_average
 
         return area_average(data.camera().astype(float), (128, 128))
     import targets  # beside this script
@@ -79,7 +79,7 @@ def one(row: str) -> dict:
     with tempfile.TemporaryDirectory() as tmp:
         paths = jc.export_lens(d.scene, tmp, formats=("stl",))
         solid = trimesh.load(paths["stl"])
-        z_mm = jc.read_exr(paths["height_exr"]).astype(float)
+        z_mm = jc.io.read_exr(paths["height_exr"]).astype(float)
         sidecar = json.loads(paths["height_json"].read_text())
     exported = jc.LensScene(
         jc.HeightField(z_mm[1::2, 1::2] / 1000.0 - THICKNESS, outline.extent, sidecar["boundary"]),

@@ -46,8 +46,7 @@ import json, sys, time
 import numpy as np
 start = time.perf_counter()
 import jaxcaustics as jc
-from jaxcaustics import reference
-from jaxcaustics.inverse.recover import recover_surface
+from jaxcaustics import recover_surface, reference
 import_s = time.perf_counter() - start
 zenith, scale, photo = float(sys.argv[1]), float(sys.argv[2]), sys.argv[3] == "True"
 extent = (0.0, 1.0, 0.0, 1.0)
@@ -109,8 +108,7 @@ FOLDS = """
 import json, time, warnings
 import numpy as np
 import jaxcaustics as jc
-from jaxcaustics import reference
-from jaxcaustics.inverse.recover import recover_surface
+from jaxcaustics import recover_surface, reference
 extent, n = (0.0, 1.0, 0.0, 1.0), 32
 terms = ((1, 0, 0.008, 0.3), (1, 1, 0.006, 1.1), (0, 2, 0.003, 2.0))
 light = jc.DirectionalLight.from_angles(30.0, 20.0)

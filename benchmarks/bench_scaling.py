@@ -78,10 +78,9 @@ def worker(n_devices: int, size: dict) -> dict:
     import numpy as np
 
     import jaxcaustics as jc
+    from jaxcaustics import render_batch
     from jaxcaustics.devices import gather_to_host, map_sharded, stack_scenes
-    from jaxcaustics.inverse.variants import design_lens_variants
-    from jaxcaustics.methods.batch import render_batch
-    from jaxcaustics.methods.triangles.method import caustic_triangles
+    from jaxcaustics.internal import caustic_triangles, design_lens_variants
 
     assert len(jax.devices()) == n_devices, jax.devices()
     rng = np.random.default_rng(0)
@@ -132,8 +131,8 @@ def worker(n_devices: int, size: dict) -> dict:
         out["photon bands"] = {"skipped": "caustic_triangles has no `devices` argument"}
 
     # CSL fits over light directions
-    from jaxcaustics.methods.spot_lights.table import _fit_direction
-    from jaxcaustics.scene.ellipsoid import Ellipsoid, EllipsoidScene
+    from jaxcaustics import Ellipsoid, EllipsoidScene
+    from jaxcaustics.internal import fit_direction
 
     sphere = EllipsoidScene(
         Ellipsoid.sphere([0.0, 0.0, 1.0], 0.3),
@@ -149,7 +148,7 @@ def worker(n_devices: int, size: dict) -> dict:
         axis=1,
     ).astype(np.float32)
     fit = functools.partial(
-        _fit_direction, rays_per_axis=size["rays"], fit_knobs={"max_lights": 4}
+        fit_direction, rays_per_axis=size["rays"], fit_knobs={"max_lights": 4}
     )  # one callable for every call: compiled once per device
     out["CSL fits"] = _timed(lambda: map_sharded(fit, sphere, directions), size["repeats"])
 

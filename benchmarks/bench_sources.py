@@ -67,7 +67,7 @@ def exported_image(design, thickness, distance, source, photons, samples):
 
     with tempfile.TemporaryDirectory() as tmp:
         paths = jc.export_lens(design.scene, tmp, formats=("stl",))
-        z_mm = jc.read_exr(paths["height_exr"]).astype(float)
+        z_mm = jc.io.read_exr(paths["height_exr"]).astype(float)
         sidecar = json.loads(paths["height_json"].read_text())
     surface = jc.HeightField(
         z_mm[1::2, 1::2] / 1000.0 - thickness,

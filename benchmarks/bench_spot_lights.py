@@ -54,7 +54,6 @@ import numpy as np
 
 import jaxcaustics as jc
 from jaxcaustics import reference
-from jaxcaustics.methods.spot_lights import table as table_module
 
 sys.path.insert(0, str(Path(__file__).parent))  # the harness beside this script
 from harness import (  # noqa: E402
@@ -183,10 +182,12 @@ def part_fit(config):
     for n in config["fit_rays"]:
 
         def trace(n=n):
-            return jc.trace_exit_rays(scene, n)
+            return jc.internal.trace_exit_rays(scene, n)
 
         def trace_fit(n=n):
-            return jc.fit_spot_lights(jc.trace_exit_rays(scene, n), memory_limit=FIT_MEMORY)
+            return jc.internal.fit_spot_lights(
+                jc.internal.trace_exit_rays(scene, n), memory_limit=FIT_MEMORY
+            )
 
         t = timing(trace_fit, config["repeats"])
         lights, info = t.out
@@ -224,9 +225,9 @@ def part_eval(config, lights):
     trimmed = lights[np.flatnonzero(active)]
     rows = []
     for label, chosen in (("all slots", lights), ("active only", trimmed)):
-        jitted = jax.jit(lambda lt: jc.render_spot_lights(lt, receiver, samples=1))
+        jitted = jax.jit(lambda lt: jc.internal.render_spot_lights(lt, receiver, samples=1))
         for mode, fn in (
-            ("as called", lambda c=chosen: jc.render_spot_lights(c, receiver, samples=1)),
+            ("as called", lambda c=chosen: jc.internal.render_spot_lights(c, receiver, samples=1)),
             ("jax.jit", lambda c=chosen, j=jitted: j(c)),
         ):
             t = timing(fn, max(config["repeats"], 5))
@@ -276,8 +277,10 @@ def part_error(config):
     )
     print("  reference", ref, flush=True)
     n = config["error_rays"]
-    rays = jc.trace_exit_rays(scene, n)
-    render = jax.jit(lambda lights: jc.render_spot_lights(lights, scene.receiver, samples=2))
+    rays = jc.internal.trace_exit_rays(scene, n)
+    render = jax.jit(
+        lambda lights: jc.internal.render_spot_lights(lights, scene.receiver, samples=2)
+    )
     done = {}
 
     def measure(max_lights, energy_fraction):
@@ -286,10 +289,12 @@ def part_error(config):
             return done[key]
 
         def fit():
-            return jc.fit_spot_lights(rays, max_lights=max_lights, energy_fraction=energy_fraction)
+            return jc.internal.fit_spot_lights(
+                rays, max_lights=max_lights, energy_fraction=energy_fraction
+            )
 
         fitted = timing(fit, config["error_repeats"])
-        result = jc.spot_lights(  # the same fit (compiled now) and its rendering
+        result = jc.internal.spot_lights(  # the same fit (compiled now) and its rendering
             scene, rays_per_axis=n, max_lights=max_lights, energy_fraction=energy_fraction
         )
         info = result.fit_info[0]
@@ -327,9 +332,10 @@ def part_error(config):
 
 
 class _PhaseClock:
-    """Times `precompute_spot_lights`'s phases while it runs, by wrapping its module's
+    """Times `precompute_spot_lights`'s phases while it runs, by wrapping the
     `map_sharded` (one call per batched phase, "CSL sets" and "tracking") and
-    `build_spot_light_table` (matching and triples, on the host), and by timing every
+    `build_spot_light_table` (matching and triples, on the host) it calls (the names in
+    its module's globals, `precompute_spot_lights.__globals__`), and by timing every
     chunk of the batched phases through the progress-bar hook (`tqdm.auto.tqdm`, which
     `map_sharded` imports when called; each chunk ends with a blocking `device_get`, the
     first includes compilation). The wrappers call the originals unchanged and are
@@ -342,7 +348,9 @@ class _PhaseClock:
     def __enter__(self):
         import tqdm.auto
 
-        self._map, self._build = table_module.map_sharded, table_module.build_spot_light_table
+        # the names `precompute_spot_lights` looks up when it runs: its module's globals
+        self._names = names = jc.precompute_spot_lights.__globals__
+        self._map, self._build = names["map_sharded"], names["build_spot_light_table"]
         self._tqdm = tqdm.auto.tqdm
         clock = self
 
@@ -386,22 +394,22 @@ class _PhaseClock:
             clock.phases["matching and triples"] = dict(s=time.perf_counter() - start)
             return out
 
-        table_module.map_sharded = map_sharded
-        table_module.build_spot_light_table = build
+        names["map_sharded"] = map_sharded
+        names["build_spot_light_table"] = build
         return self
 
     def __exit__(self, *exc):
         import tqdm.auto
 
-        table_module.map_sharded = self._map
-        table_module.build_spot_light_table = self._build
+        self._names["map_sharded"] = self._map
+        self._names["build_spot_light_table"] = self._build
         tqdm.auto.tqdm = self._tqdm
         return False
 
 
 def directions_count(subdivisions):
-    directions, faces = table_module.icosphere_directions(subdivisions)
-    edges = table_module.direction_edges(faces)
+    directions, faces = jc.internal.icosphere_directions(subdivisions)
+    edges = jc.internal.direction_edges(faces)
     return len(directions), len(edges), len(faces)
 
 
@@ -539,7 +547,7 @@ def part_precompute(config, limit_min, log=print):
 def _fit_defaults():
     import inspect
 
-    params = inspect.signature(jc.fit_spot_lights).parameters
+    params = inspect.signature(jc.internal.fit_spot_lights).parameters
     keep = ("max_lights", "energy_fraction", "resolution", "cells", "axis_iterations", "fit_steps")
     return {k: params[k].default for k in keep}
 
@@ -990,7 +998,7 @@ def main(argv=None) -> None:
         data["rows"]["fit"], sets = part_fit(config)
     elif "eval" in parts:  # the set to render, fitted once (untimed)
         n = config["eval_set_rays"]
-        sets = {n: jc.fit_spot_lights(jc.trace_exit_rays(sphere_scene(), n))[0]}
+        sets = {n: jc.internal.fit_spot_lights(jc.internal.trace_exit_rays(sphere_scene(), n))[0]}
     if "eval" in parts:
         data["rows"]["eval"] = part_eval(config, sets[config["eval_set_rays"]])
     if "error" in parts:

@@ -33,7 +33,7 @@ import numpy as np
 import trimesh
 
 import jaxcaustics as jc
-from jaxcaustics.methods.choose import allowed_rows, as_mesh_scene, resolve_knobs
+from jaxcaustics.internal import DEFAULT_MARGIN, allowed_rows, as_mesh_scene, resolve_knobs
 
 sys.path.insert(0, str(Path(__file__).parent))  # the harness beside this script
 from harness import timed, write_results  # noqa: E402
@@ -55,8 +55,10 @@ def held_out_scenes(pixels: int = 32) -> dict:
         0.7,
     )
     aperture = (-0.05, 0.05, -0.05, 0.05)
-    bumps = jc.gaussian_bump((48, 48), aperture, center=(0.012, -0.01), sigma=0.02, amplitude=0.003)
-    bumps = bumps - 0.4 * jc.gaussian_bump(
+    bumps = jc.internal.gaussian_bump(
+        (48, 48), aperture, center=(0.012, -0.01), sigma=0.02, amplitude=0.003
+    )
+    bumps = bumps - 0.4 * jc.internal.gaussian_bump(
         (48, 48), aperture, center=(-0.02, 0.015), sigma=0.012, amplitude=0.003
     )
     lens = jc.LensScene(
@@ -106,7 +108,7 @@ def tolerances_for(rows: list[dict], margin: float) -> list[float]:
 
 
 def measure_kind(kind: str, scene, ref_knobs: dict, log=print) -> list[dict]:
-    table = jc.accuracy_table()["kinds"][kind]
+    table = jc.internal.accuracy_table()["kinds"][kind]
     # twice the photons per axis of `held_out_scenes`: the reference's own error then falls
     # about 4x, below the tightest tolerances (as in the slow tests)
     ref = jc.reference_image(scene, **{k: 2 * v for k, v in ref_knobs.items()})
@@ -122,8 +124,8 @@ def measure_kind(kind: str, scene, ref_knobs: dict, log=print) -> list[dict]:
             f"error {error:.4f} time {t.median:.4f} s"
         )
     out = []
-    for tol in sorted(set(tolerances_for(allowed, jc.methods.choose.DEFAULT_MARGIN))):
-        choice = jc.choose_method(scene, tol)
+    for tol in sorted(set(tolerances_for(allowed, DEFAULT_MARGIN))):
+        choice = jc.internal.choose_method(scene, tol)
         picked = next(m for m in measured if m["row"] is choice.row)
         meeting = [m for m in measured if m["error"] <= tol]
         fastest = min(meeting, key=lambda m: m["time_s"]) if meeting else None
@@ -157,7 +159,7 @@ def describe(row) -> str:
 
 
 def report(results: list[dict], pixels: int, loads: dict) -> str:
-    table = jc.accuracy_table()
+    table = jc.internal.accuracy_table()
     lines = [
         "# `render(scene, tolerance=t)` on held-out scenes",
         "",
@@ -169,7 +171,7 @@ def report(results: list[dict], pixels: int, loads: dict) -> str:
         "median of 3 renders after a compiling one. `fastest meeting t`: the fastest of all "
         "the table's settings the scene allows, each run on this scene; `factor`: the "
         "choice's time over it. Margin "
-        f"{jc.methods.choose.DEFAULT_MARGIN} (a setting is chosen if its tabled error x margin "
+        f"{DEFAULT_MARGIN} (a setting is chosen if its tabled error x margin "
         "<= t).",
         "",
         "| kind | t | choice | tabled error | error here | met | time ms | fastest meeting t "

@@ -41,7 +41,7 @@ import numpy as np
 
 import jaxcaustics as jc
 from jaxcaustics import reference
-from jaxcaustics.methods.triangles.method import splat_photons, trace_photons, triangle_window
+from jaxcaustics.internal import splat_photons, trace_photons, triangle_window
 
 sys.path.insert(0, str(Path(__file__).parent))  # the harness beside this script
 from harness import compile_time, markdown, once, timed, write_results  # noqa: E402
@@ -109,7 +109,7 @@ def triangle_rows(scene, truth, grids, weights, repeats, reconstruction, supersa
         window = triangle_window(trace_photons(scene, (n, n)), scene.receiver)
 
         def forward_fn(s, n=n, window=window):
-            result = jc.caustic_triangles(
+            result = jc.internal.caustic_triangles(
                 s, photons=n, reconstruction=reconstruction, window=window, supersample=supersample
             )
             return result.image, result.missed_flux_fraction

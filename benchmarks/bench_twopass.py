@@ -105,7 +105,7 @@ def unit_scene(heights, depth, zenith=0.0, azimuth=0.0):
 
 def focusing_scene(size):
     """A bump focusing 1.1 m below a 3 m deep surface: rays move up to ~9 pixels."""
-    return unit_scene(jc.gaussian_bump((size, size), UNIT, sigma=0.1, amplitude=0.03), 3.0)
+    return unit_scene(jc.internal.gaussian_bump((size, size), UNIT, sigma=0.1, amplitude=0.03), 3.0)
 
 
 def oblique_scene(size):
@@ -124,7 +124,7 @@ def window_table(scene, truth, windows, repeats) -> list[dict]:
     rows = []
     for n, m in windows:
         if n == "auto":
-            n, m = jc.auto_window(scene)
+            n, m = jc.internal.auto_window(scene)
         fn = jax.jit(
             lambda s, n=n, m=m: jc.render(
                 s, samples_x=n, channels_y=m, supersample=1, return_stats=True
@@ -152,7 +152,7 @@ def knob_table(scene, truth, knob, values, repeats) -> list[dict]:
 
     The window is sized for the scene (`auto_window`) so that it does not dominate.
     """
-    n, m = jc.auto_window(scene)
+    n, m = jc.internal.auto_window(scene)
     rows = []
     for value in values:
         fn = jax.jit(

@@ -15,7 +15,7 @@ import numpy as np
 
 
 def _area_average(image: np.ndarray, size: int) -> np.ndarray:
-    from jaxcaustics.inverse.numerics import area_average as average
+    from jaxcaustics.internal import area_average as average
 
     return average(np.asarray(image, float), (size, size))
 

@@ -65,14 +65,16 @@ def timed(label, render):
 
 
 knobs = dict(photons=1024, map_resolution=512)
-dense = timed("caustics mapping, 1024^2 photons", lambda: jc.caustics_mapping(scene, **knobs))
-traversal = timed("adaptive, maximal traversal", lambda: jc.adaptive_caustic_map(scene, **knobs))
+dense = timed("caustics mapping, 1024^2 photons", lambda: jc.CausticsMapping(**knobs).trace(scene))
+traversal = timed(
+    "adaptive, maximal traversal", lambda: jc.AdaptiveCausticMap(**knobs).trace(scene)
+)
 merged = timed(
     "adaptive, maximal map error",
-    lambda: jc.adaptive_caustic_map(scene, metric="error", **knobs),
+    lambda: jc.AdaptiveCausticMap(metric="error", **knobs).trace(scene),
 )
 triangles = timed(
-    "caustic triangles, 129^2 photons", lambda: jc.caustic_triangles(scene, photons=129)
+    "caustic triangles, 129^2 photons", lambda: jc.CausticTriangles(photons=129).trace(scene)
 )
 print("adaptive photons per level (traversal):", traversal.stats["generated_per_level"])
 print("adaptive photons per level (map error):", merged.stats["generated_per_level"])

@@ -45,7 +45,7 @@ lens = jc.LensScene(
 )
 # 129 x 129 photons make 2 x 128 x 128 caustic triangles, each spreading the light of its
 # half cell exactly over the pixels it covers ("exact" reconstruction).
-result = jc.caustic_triangles(lens, photons=129)
+result = jc.CausticTriangles(photons=129)(lens)
 truth = reference.trace_lens(lens, 1024)  # 1024^2 photons binned into the pixels
 error = float(np.abs(np.asarray(result.image) - truth).sum() / truth.sum())
 print(f"lens: relative L1 error against the reference {error:.4f}")
@@ -53,12 +53,14 @@ print(f"      missed flux fraction {float(result.missed_flux_fraction[0]):.2e}")
 
 # 2. The gradient of a loss on the image with respect to the lens heights: how to push
 #    the surface to brighten the centre of the screen.
-window = jc.triangle_window(result.photons, lens.receiver)  # fixed window under jit
+#    `method_for` fixes the splat window from the scene's photons, so that the method
+#    runs under `jax.grad` (and `jax.jit`).
+method = jc.method_for(lens, jc.CausticTriangles(photons=65))
 
 
 def brightness_at_centre(h):
     scene = eqx.tree_at(lambda s: s.surface.heights, lens, h)
-    image = jc.caustic_triangles(scene, photons=65, window=window).image
+    image = jc.render(scene, method)
     return jnp.sum(image[56:72, 56:72])
 
 
@@ -78,7 +80,7 @@ sphere = jc.MeshScene(
     ior=1.5,
     occluders=[jc.Mesh.from_trimesh(slab)],
 )
-ball_image = jc.caustic_triangles(sphere, photons=65).image
+ball_image = jc.render(sphere, jc.CausticTriangles(photons=65))
 ball_truth = reference.trace_mesh(sphere, 512)
 
 fig, axes = plt.subplots(2, 2, figsize=(8, 8))

@@ -18,7 +18,6 @@ import numpy as np  # noqa: E402
 
 import jaxcaustics as jc  # noqa: E402
 from jaxcaustics import reference  # noqa: E402
-from jaxcaustics.inverse.recover import recover_surface  # noqa: E402
 
 OUTPUT = Path("out")
 OUTPUT.mkdir(exist_ok=True)
@@ -35,7 +34,7 @@ scene = jc.WaterScene(
 caustic = reference.trace_water(scene, photons_per_axis=16)
 
 # 2. Recover the heights from the caustic.
-result = recover_surface(caustic, extent=extent, rest_depth=0.5, light=light)
+result = jc.recover_surface(caustic, extent=extent, rest_depth=0.5, light=light)
 t = truth - truth.mean()
 error = np.linalg.norm(result.heights - t) / np.linalg.norm(t)
 found = jc.WaterScene(

@@ -36,7 +36,7 @@ scene = jc.EllipsoidScene(ball, jc.DirectionalLight.from_angles(20.0), receiver,
 shadowed = jc.EllipsoidScene(ball, scene.light, receiver, ior=1.5, occluders=[blocker])
 
 start = time.perf_counter()
-result = jc.spot_lights(scene, rays_per_axis=256, max_lights=8)
+result = jc.SpotLightMethod(rays_per_axis=256, fit={"max_lights": 8}).trace(scene)
 result.image.block_until_ready()
 fit_time = time.perf_counter() - start
 lights, info = result.lights[0], result.fit_info[0]
@@ -58,9 +58,9 @@ print(f"reference (2048^2 photons): {ref_time:.1f} s")
 print(f"error against the reference (1-px blur): {jc.image_error(result.image, ref):.3f}")
 
 # the same lights with the occluder (an analytic shadow test per ray) and a glossy floor
-with_shadow = jc.spot_lights(shadowed, lights=lights).image
+with_shadow = jc.render(shadowed, jc.SpotLightMethod(lights=lights))
 eye = jnp.array([0.0, -2.5, 2.0])
-glossy = jc.spot_lights(scene, lights=lights, shading=jc.Glossy(eye, 0.3, 0.7, 60.0)).image
+glossy = jc.render(scene, jc.SpotLightMethod(lights=lights, shading=jc.Glossy(eye, 0.3, 0.7, 60.0)))
 
 # a moving light: lights for the vertices of an icosahedron, interpolated in between
 start = time.perf_counter()
@@ -69,9 +69,9 @@ table = jc.precompute_spot_lights(
 )
 print(f"table over {len(table.directions)} light directions: {time.perf_counter() - start:.0f} s")
 moving = jc.DirectionalLight.from_angles(27.0, 40.0)
-frame_lights = jc.interpolate_spot_lights(table, moving.unit_direction)
+frame_lights = table.interpolate(moving.unit_direction)
 frame_scene = jc.EllipsoidScene(ball, moving, receiver, ior=1.5)
-frame = jc.spot_lights(frame_scene, lights=frame_lights).image
+frame = jc.render(frame_scene, jc.SpotLightMethod(lights=frame_lights))
 frame_ref = reference.trace_ellipsoid(frame_scene, 1024)
 print(f"interpolated frame, error against the reference: {jc.image_error(frame, frame_ref):.3f}")
 

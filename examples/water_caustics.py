@@ -32,11 +32,13 @@ scene = jc.WaterScene(surface, light, floor, rest_depth=0.5, ior=1.333)
 print("simulated effects:", scene.effects)
 
 # 2. Render. The image is irradiance relative to a horizontal plane in the light: flat
-#    water gives exactly 1.0. `auto_window` (what samples_x="auto" does) sizes the gather
-#    window (N, M) so that no light is lost; the paper's fixed N=7, M=6 is faster but
+#    water gives exactly 1.0. `method_for` sizes the two-pass gather window (N, M) from
+#    the scene (what samples_x="auto" does) so that no light is lost, and fixes it, so the
+#    method can also be used under `jax.jit`; the paper's fixed N=7, M=6 is faster but
 #    misses light when the waves move it more than 3 pixels.
-N, M = jc.auto_window(scene)
-image, stats = jc.render(scene, "twopass", return_stats=True, samples_x=N, channels_y=M)
+method = jc.method_for(scene)
+N, M = method.samples_x, method.channels_y
+image, stats = jc.render(scene, method, return_stats=True)
 image = np.asarray(image)
 missed = float(stats["missed_flux_fraction"][0])
 print(f"N = {N}, M = {M}: missed flux {100 * missed:.3g}%, mean irradiance {image.mean():.4f}")
@@ -45,8 +47,8 @@ if missed > 0.01:
 
 # 3. Save: a tone-mapped PNG to look at, a linear EXR to compute with.
 jc.write_png(OUTPUT / "water_caustics.png", image)
-jc.write_exr(OUTPUT / "water_caustics.exr", image)
-assert np.allclose(jc.read_exr(OUTPUT / "water_caustics.exr"), image)
+jc.io.write_exr(OUTPUT / "water_caustics.exr", image)
+assert np.allclose(jc.io.read_exr(OUTPUT / "water_caustics.exr"), image)
 
 # 4. Plot in metres (origin="lower": y points up, as in the scene).
 fig, ax = plt.subplots(figsize=(6, 4.2), constrained_layout=True)

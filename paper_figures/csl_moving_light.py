@@ -121,7 +121,7 @@ def azimuth_deg(s) -> float:
 
 def choose_directions(subdivisions: int) -> dict:
     """The vertex and the face centre used (unit vectors towards the light)."""
-    vertices, faces = jc.icosphere_directions(subdivisions)
+    vertices, faces = jc.internal.icosphere_directions(subdivisions)
     zen = zenith_deg(vertices)
     down = (vertices[:, 2] > 0) & (zen <= MAX_ZENITH)
     if not down.any():
@@ -199,14 +199,16 @@ def precompute(settings: dict, output: Path, reuse: bool):
 
 def _render(scene, lights):
     start = time.perf_counter()
-    result = jc.spot_lights(scene, lights=lights)
+    result = jc.internal.spot_lights(scene, lights=lights)
     image = np.asarray(result.image, np.float64)
     return image, int(result.stats["lights"][0]), time.perf_counter() - start
 
 
 def _fit(scene, settings):
     start = time.perf_counter()
-    result = jc.spot_lights(scene, rays_per_axis=settings["rays_per_axis"], **settings["fit_knobs"])
+    result = jc.internal.spot_lights(
+        scene, rays_per_axis=settings["rays_per_axis"], **settings["fit_knobs"]
+    )
     image = np.asarray(result.image, np.float64)
     return (
         image,
@@ -219,7 +221,7 @@ def _fit(scene, settings):
 def run(settings: dict, output: Path, reuse: bool = False) -> tuple[dict, dict]:
     dirs = choose_directions(settings["subdivisions"])
     table, precompute_s = precompute(settings, output, reuse)
-    interp = jax.jit(jc.interpolate_spot_lights)
+    interp = jax.jit(jc.internal.interpolate_spot_lights)
     rows, images = [], {}
     for key, s in (("vertex", dirs["s_vertex"]), ("face centre", dirs["s_mid"])):
         scene = scene_for(s, settings["pixels"])

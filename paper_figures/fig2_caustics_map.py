@@ -31,7 +31,6 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
 import jaxcaustics as jc  # noqa: E402
-from jaxcaustics.cli.main import _size  # noqa: E402  (the CLI's COLSxROWS parser)
 
 DEFAULT_OUTPUT = Path(__file__).resolve().parent / "output"
 
@@ -64,6 +63,19 @@ def water_scene(shape, time_s: float, *, seed: int = 0, amplitude: float = AMPLI
         DEPTH,
         ior=IOR,
     )
+
+
+def _size(text: str) -> tuple[int, int]:
+    """``"COLSxROWS"`` -> ``(rows, cols)``, as the CLI's ``--size``."""
+    try:
+        cols, rows = (int(p) for p in text.lower().replace("*", "x").split("x"))
+    except ValueError:
+        raise argparse.ArgumentTypeError(
+            f"expected COLSxROWS, e.g. 800x600, got {text!r}"
+        ) from None
+    if cols < 2 or rows < 2:
+        raise argparse.ArgumentTypeError(f"need at least 2x2 pixels, got {text!r}")
+    return rows, cols
 
 
 def main(argv=None) -> int:

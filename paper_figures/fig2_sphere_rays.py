@@ -42,7 +42,7 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
 import jaxcaustics as jc  # noqa: E402
-from jaxcaustics.trace.optics import orthonormal_basis
+from jaxcaustics.internal import orthonormal_basis
 
 DEFAULT_OUTPUT = Path(__file__).resolve().parent / "output"
 NAME = "fig2_sphere_rays"
@@ -84,7 +84,7 @@ def meridional_rays(n: float, rays_per_axis: int) -> dict:
         jc.PlaneReceiver((-1.0, 1.0, -1.0, 1.0), (8, 8)),
         ior=n,
     )
-    rays = jc.trace_exit_rays(scene, rays_per_axis)
+    rays = jc.internal.trace_exit_rays(scene, rays_per_axis)
     light = np.array([0.0, 0.0, -1.0])
     e1, e2 = (np.asarray(e, np.float64) for e in orthonormal_basis(np.asarray(light, np.float32)))
     mid = rays_per_axis // 2

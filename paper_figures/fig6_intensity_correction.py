@@ -108,14 +108,14 @@ def run(quick: bool = False, height: float = HEIGHT, size: float = SIZE) -> tupl
     coarse = np.asarray(reference.trace_ellipsoid(scene, settings["reference"] // 2), np.float64)
 
     start = time.perf_counter()
-    fitted = jc.spot_lights(scene, rays_per_axis=settings["rays_per_axis"])
+    fitted = jc.internal.spot_lights(scene, rays_per_axis=settings["rays_per_axis"])
     corrected = np.asarray(fitted.image, np.float64)
     fit_s = time.perf_counter() - start
     lights = fitted.lights[0]
 
     start = time.perf_counter()
     plain = np.asarray(
-        jc.spot_lights(scene, lights=lights, intensity_correction=False).image, np.float64
+        jc.internal.spot_lights(scene, lights=lights, intensity_correction=False).image, np.float64
     )
     plain_s = time.perf_counter() - start
 

@@ -68,7 +68,7 @@ import trimesh  # noqa: E402
 
 import jaxcaustics as jc  # noqa: E402
 from jaxcaustics import reference  # noqa: E402
-from jaxcaustics.methods.triangles.method import splat_photons  # noqa: E402
+from jaxcaustics.internal import splat_photons  # noqa: E402
 
 DEFAULT_OUTPUT = Path(__file__).resolve().parent / "output"
 NAME = "fig_triangles_vs_splats"
@@ -109,7 +109,7 @@ def torus_scene(sections=FULL["sections"], pixels=FULL["pixels"]) -> jc.MeshScen
     )
 
 
-def hit_location_image(photons: jc.Photons, extent) -> np.ndarray:
+def hit_location_image(photons: jc.internal.Photons, extent) -> np.ndarray:
     """The photon hit location image as RGB: x in red, y in green (0..1 over `extent`),
     invalid photons black. Row 0 is the first row of the emission grid."""
     x0, x1, y0, y1 = extent
@@ -173,7 +173,7 @@ def main(argv=None) -> int:
     )
 
     start = time.perf_counter()
-    result = jc.caustic_triangles(scene, photons=n)
+    result = jc.internal.caustic_triangles(scene, photons=n)
     triangles = np.asarray(result.image)
     tri_s = time.perf_counter() - start
     photons = result.photons

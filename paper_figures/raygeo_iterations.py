@@ -21,11 +21,7 @@ import jax
 import trimesh
 
 import jaxcaustics as jc
-from jaxcaustics.methods.caustic_map.gbuffer import (
-    geometry_buffers,
-    intersection_errors,
-    raster_window,
-)
+from jaxcaustics.internal import geometry_buffers, intersection_errors, raster_window
 
 jax.config.update("jax_enable_x64", True)
 
@@ -57,7 +53,7 @@ def table(quick: bool = False) -> str:
     ]
     for name, light in lights:
         scene = _scene(light)
-        view = jc.light_view(scene)
+        view = jc.internal.light_view(scene)
         buffers = geometry_buffers(scene, view, resolution, raster_window(scene, view, resolution))
         errors = intersection_errors(scene, buffers, photons, iterations)
         for k in iterations:

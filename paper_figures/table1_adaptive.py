@@ -244,7 +244,7 @@ def run_scene(name: str, settings: dict, args) -> dict:
         estimate = None if dense_rate is None else dense_rate * n * n
         if n <= settings["max_dense"] and (estimate is None or estimate <= args.dense_budget):
             timed = _timed(
-                lambda n=n: jc.caustics_mapping(scene, photons=n, **common),
+                lambda n=n: jc.internal.caustics_mapping(scene, photons=n, **common),
                 args.repeat,
                 args.warm_below,
             )
@@ -264,7 +264,7 @@ def run_scene(name: str, settings: dict, args) -> dict:
         _report(name, rows[-1])
         for metric in ("traversal", "error"):
             timed = _timed(
-                lambda n=n, metric=metric: jc.adaptive_caustic_map(
+                lambda n=n, metric=metric: jc.internal.adaptive_caustic_map(
                     scene,
                     photons=n,
                     base=BASE,
