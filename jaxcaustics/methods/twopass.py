@@ -497,14 +497,17 @@ class TwoPass(Method):
 
     **Arguments:**
 
-    - `samples_x`: N, samples along ``x`` per pixel (odd); ``"auto"`` (the default)
-      sizes the window along ``x`` from the largest ray displacement. ``"auto"``
-      traces the pre-pass once more and needs concrete scene values: it works under
-      `grad` (the window is a constant there) but not under `jit` or `vmap`: pass
-      integers there (sized beforehand by ``method_for(scene)``, which calls
-      `auto_window`, or the paper's 7 and 6).
+    - `samples_x`: N, samples along ``x`` per pixel (odd; the paper's 7): light that
+      lands within about N/2 pixels along ``x`` is caught. ``"auto"`` (the default)
+      sizes the window along ``x`` from the largest ray displacement, up to
+      `MAX_AUTO_HALF_WINDOW` = 32 pixels each side. ``"auto"`` traces the pre-pass once
+      more and needs concrete scene values: it works under `grad` (the window is a
+      constant there) but not under `jit` or `vmap`: fix it first with ``method =
+      method_for(scene)`` (which calls `auto_window`), then transform ``render(scene,
+      method)``; or pass integers (the paper's 7 and 6: `TwoPass.paper()`).
     - `channels_y`: M, so that ``M + 1`` neighbouring pixels along ``y`` are reached
-      (even); ``"auto"`` (the default) as above, along ``y``.
+      (even; the paper's 6): light within about M/2 pixels along ``y``; ``"auto"`` (the
+      default) as above, along ``y``.
     - `hit_iterations`: Newton steps to find where each light ray meets the moving
       surface (default 3; 0 uses the rest-plane point; oblique light needs 2-4).
     - `supersample`: S (default 2), so that ``S x S`` samples per pixel are gathered, each

@@ -159,7 +159,8 @@ class SpotLightMethod(Method):
     - `max_gain`: bound on the intensity correction ``1 / sigma`` (> 0; default 1e4;
       see `evaluate_spot_lights`).
     - `intensity_correction`: apply Liu et al.'s Eq. 4 (default ``True``); ``False``
-      gives the uncorrected rendering of the paper's Fig. 6 (see `evaluate_spot_lights`).
+      gives the uncorrected rendering of the paper's Fig. 6 (left; see
+      `evaluate_spot_lights`).
     - `memory_limit`: bytes for the traced rays of one channel (default 1 GiB,
       `ray_bytes` per ray). The fit needs all of a grid's rays at once, so they are not
       batched: a grid over the limit raises a `ValueError` before anything is compiled,
@@ -170,7 +171,15 @@ class SpotLightMethod(Method):
     - `fit`: a dict of the keywords passed on to `fit_spot_lights` (`max_lights`,
       `energy_fraction`, `resolution`, `cells`, thresholds...; default empty: the fit's
       defaults); a name it does not take is refused. `render` (and `from_knobs`) take
-      them as knobs of their own: ``render(scene, "spot_lights", max_lights=8)``.
+      them as knobs of their own: ``render(scene, "spot_lights", max_lights=8)``. The
+      main ones: `max_lights` (default 16), the light slots; `energy_fraction` (0.95):
+      the fit stops once that fraction of the traced energy is in lights; `resolution`
+      (64): light-plane image pixels per side; `angle_threshold_deg` (60) and
+      `distance_threshold` (0.1 x the object's size): which rays join a bundle (the
+      paper: within 90 degrees; 30 splits a glass ball's marginal rays into many small
+      lights, 85 forces them into one law that fits them badly: relative L1 0.17 /
+      0.057 / 0.10 at 30 / 60 / 85 on the glass ball of radius 0.3 m under the sun at
+      20 degrees of `examples/spot_lights.py`).
 
     Checked before anything is traced: ints are ints (no bools or floats), `max_gain` a
     positive finite number, `intensity_correction` a bool, `lights` a `SpotLights`;

@@ -753,21 +753,23 @@ class CausticTriangles(Method):
 
     - `photons`: the photon grid, ``n`` (``n x n``) or ``(rows, cols)`` photons
       (vertices of the grid; default 257); ``2 (rows - 1) (cols - 1)`` triangles.
-    - `reconstruction`: ``"exact"`` (flux-conserving, exact overlap areas) or
-      ``"gouraud"`` (the paper's vertex irradiance with Gouraud interpolation); default
-      ``"exact"``.
+    - `reconstruction`: ``"exact"`` (constant irradiance per triangle, exact
+      triangle/pixel overlap areas, flux conserved to rounding) or ``"gouraud"`` (the
+      paper's vertex irradiance, each vertex's power over a third of its adjacent
+      triangles' area, interpolated and point-sampled); default ``"exact"``.
     - `window`: each triangle touches a ``window x window`` block of pixels; ``"auto"``
       (the default) takes the smallest window that holds whole the triangles carrying
-      99.9% of the flux (`triangle_window`; needs concrete scene values: inside `jax.jit`
-      pass an int, or size it beforehand with ``method_for(scene)``).
-      Flux beyond it is reported as missed. With ``"auto"`` the triangles are also drawn
-      in *tiers* (`jaxcaustics.reconstruct.raster.sum_in_tiers`): by the pixels they
-      span, the few wide ones with that window, the many narrow ones with up to
-      `MAX_TIERS` - 1 narrower windows (powers of two), and invalid ones not at all; the
-      tiers are the cheapest by `triangle_bytes` (`stats["tiers"]`), their capacities
-      powers of two, so that a new scene seldom compiles anew. Same image, to rounding:
-      on the 320-face blob of the accuracy report (97^2 photons, 64^2 pixels, window 32)
-      the rasterisation took 6 ms against 150 ms with one window.
+      99.9% of the flux, capped at `MAX_AUTO_WINDOW` = 32 (`triangle_window`; needs
+      concrete scene values: under `jax.jit` or `jax.vmap` fix it first with ``method =
+      method_for(scene)``, then transform ``render(scene, method)``, or pass an int: one
+      window for all triangles). Flux beyond it is reported as missed. With ``"auto"``
+      the triangles are also drawn in *tiers* (`jaxcaustics.reconstruct.raster.sum_in_tiers`):
+      by the pixels they span, the few wide ones with that window, the many narrow ones
+      with up to `MAX_TIERS` - 1 = 2 narrower windows (powers of two), and invalid ones
+      not at all; the tiers are the cheapest by `triangle_bytes` (`stats["tiers"]`), their
+      capacities powers of two, so that a new scene seldom compiles anew. Same image, to
+      rounding: on the 320-face blob of the accuracy report (97^2 photons, 64^2 pixels,
+      window 32) the rasterisation took 6 ms against 150 ms with one window.
     - `supersample`: ``"gouraud"`` only: ``S x S`` point samples per pixel (default 2).
     - `hit_iterations`: lens scenes: Newton steps for the top-surface hit (default 3).
     - `memory_limit`: bytes for the photon and triangle buffers (default 1 GiB). Half
@@ -791,17 +793,16 @@ class CausticTriangles(Method):
       rounding.
     - `visibility`: mesh scenes: ``"exact"`` (the default; rays leaving the generator are
       intersected exactly with the occluders and the screen; triangles are drawn on the
-      screen) or
-      ``"distance_map"`` (the paper's pipeline: rays are traced in a layered distance map
-      of the screen and the occluders around the generator, caustic triangles are drawn
-      with Gouraud interpolation onto a light cube map, and the camera pass projects it
-      onto the screen with a shadow-map distance test, so caustics landing on an
-      occluder do not leak onto the screen behind it). Its knobs: `cube_map`
-      (`CubeMapOptions`; ``None``, the default: its defaults); `reconstruction`, `window`
-      and `supersample` do not apply, and the missed-flux fraction is NaN (light may
-      land on occluders). It traces the
-      whole grid at once: a grid over half the `memory_limit` raises a `ValueError`,
-      and `devices` must be ``None``.
+      screen) or ``"distance_map"`` (the paper's pipeline: rays are traced in a layered
+      distance map of the screen and the occluders around the generator, by a linear
+      then a secant search; caustic triangles are drawn with Gouraud interpolation onto
+      a light cube map, and the camera pass projects it onto the screen with a
+      shadow-map distance test, so caustics landing on an occluder do not leak onto the
+      screen behind it). Its knobs: `cube_map` (`jaxcaustics.internal.CubeMapOptions`;
+      ``None``, the default: its defaults); `reconstruction`, `window` and `supersample`
+      do not apply, and the missed-flux fraction is NaN (light may land on occluders).
+      It traces the whole grid at once: a grid over half the `memory_limit` raises a
+      `ValueError`, and `devices` must be ``None``.
 
     Checks, before anything is compiled: ints are ints (no bools or floats), `window` at
     most one past the receiver's larger side, `hit_iterations` in ``[0, 100]``; a knob
