@@ -56,3 +56,13 @@ def test_a_picture_that_fails_while_written_leaves_the_earlier_one(tmp_path, mon
     with pytest.raises(OSError, match="No space"):
         write(path, 1.0 - earlier)
     assert path.read_bytes() == before and _listing(tmp_path) == [path.name]
+
+
+def test_a_file_written_whole_has_the_permissions_open_would_give(tmp_path):
+    """`mkstemp`'s owner-only mode is not left on a user's file (a design's files go to a
+    workshop): the same mode as a file written with `open`."""
+    plain = tmp_path / "plain.txt"
+    plain.write_text("x")
+    whole = tmp_path / "whole.json"
+    files.write_json(whole, {"a": 1})
+    assert whole.stat().st_mode & 0o777 == plain.stat().st_mode & 0o777
