@@ -109,3 +109,37 @@ def test_a_rotated_lens_is_traced_as_it_sits():
     target = reference.trace_lens(turned, 512)
     solid = reference.trace_mesh(solid_scene(turned, samples=(65, 65)), 256)
     assert relative_l2(solid, target) < 0.1
+
+
+def test_the_facets_estimate_is_what_photon_traces_of_the_solid_converge_to():
+    """`reference.trace_solid_facets` follows each flat facet's light exactly (parallel
+    light): photon traces of the same solid approach it as their grid grows, and it keeps
+    the flux. Measured (a bump lens's 97^2-sampled solid, 40^2 pixels): photon traces at
+    256^2, 512^2 and 1024^2 are 0.037, 0.016 and 0.010 off it; the facets take 0.01 s
+    against a minute for the 1024^2 trace. Here (49^2 samples, light 10 degrees off):
+    0.066 at 128^2, 0.018 at 384^2."""
+    x = np.linspace(-1, 1, 48)
+    bump = 0.0015 * np.exp(-((x[:, None] - 0.2) ** 2 + x[None, :] ** 2) / 0.15)
+    lens = jc.LensScene(
+        jc.HeightField(bump, (0.0, 0.1, 0.0, 0.1), "clamp"),
+        jc.DirectionalLight.from_angles(10.0, 30.0),
+        jc.PlaneReceiver((-0.02, 0.12, -0.02, 0.12), (40, 40)),
+        thickness=0.01,
+        screen_distance=0.3,
+    )
+    solid = solid_scene(lens, samples=(49, 49))
+    exact = reference.trace_solid_facets(solid)
+    coarse, fine = (reference.trace_mesh(solid, n) for n in (128, 384))
+    assert relative_l2(fine, exact) < 0.7 * relative_l2(coarse, exact)
+    assert relative_l2(fine, exact) < 0.04
+    # the same light on the screen (all of it lands inside the receiver here), up to the
+    # light near the rim that the photons follow out through a side wall and the facets
+    # send through the bottom face (measured 0.1% apart)
+    assert exact.sum() == pytest.approx(fine.sum(), rel=3e-3)
+    # more points per landing triangle change the image by little: converged
+    assert relative_l2(reference.trace_solid_facets(solid, 24**2), exact) < 0.01
+    with pytest.raises(ValueError, match="samples_per_triangle"):
+        reference.trace_solid_facets(solid, 5)
+    point = jc.MeshScene(solid.generator, jc.PointLight([0.05, 0.05, 1.0]), solid.receiver)
+    with pytest.raises(ValueError, match="DirectionalLight"):
+        reference.trace_solid_facets(point)

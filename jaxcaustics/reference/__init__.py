@@ -172,6 +172,7 @@ images with the disc's weights (`_sources.py`).
 """
 
 from ._ellipsoid import trace_ellipsoid, trace_ellipsoid_rays
+from ._facets import trace_solid_facets
 from ._lens import emit_lens_photons, trace_lens, trace_lens_photons
 from ._mesh import emit_mesh_photons, intersect_mesh, trace_mesh, trace_mesh_photons
 from ._mirror import trace_mirror, trace_mirror_photons
@@ -203,6 +204,7 @@ __all__ = [
     "trace_mesh_photons",
     "trace_mirror",
     "trace_mirror_photons",
+    "trace_solid_facets",
     "trace_photons",
     "trace_water",
 ]
