@@ -21,6 +21,8 @@ Public functions
   or mirroring triangle mesh, occluders): image (and photon counts), photon by photon,
   emission grid.
 - `intersect_mesh`: nearest ray/triangle hits (exact Möller–Trumbore, float64).
+- `trace_solid_facets`: the exact caustic of a faceted height-field solid on a flat
+  bottom face (an exported lens) under parallel light, facet by facet: no photon grid.
 - `chunk_photons`, `PHOTON_BYTES`: photons traced at a time under a `memory_limit`
   (bytes; the tracers' `memory_limit` argument).
 - `trace_ellipsoid`, `trace_ellipsoid_rays`: the ellipsoid scene (an analytic glass
