@@ -67,15 +67,12 @@ def water_scene(shape, time_s: float, *, seed: int = 0, amplitude: float = AMPLI
 
 def _size(text: str) -> tuple[int, int]:
     """``"COLSxROWS"`` -> ``(rows, cols)``, as the CLI's ``--size``."""
-    try:
-        cols, rows = (int(p) for p in text.lower().replace("*", "x").split("x"))
-    except ValueError:
+    cols, _, rows = text.lower().partition("x")
+    if not (cols.isdigit() and rows.isdigit()) or min(int(cols), int(rows)) < 2:
         raise argparse.ArgumentTypeError(
-            f"expected COLSxROWS, e.g. 800x600, got {text!r}"
-        ) from None
-    if cols < 2 or rows < 2:
-        raise argparse.ArgumentTypeError(f"need at least 2x2 pixels, got {text!r}")
-    return rows, cols
+            f"expected COLSxROWS of at least 2x2 pixels, e.g. 800x600, got {text!r}"
+        )
+    return int(rows), int(cols)
 
 
 def main(argv=None) -> int:
