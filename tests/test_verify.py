@@ -43,14 +43,16 @@ def test_the_exported_solid_renders_like_the_height_field():
     assert relative_l2(reference.trace_mesh(solid, 512), lens_image) < 0.04
 
 
-@pytest.mark.slow  # 10 s: nine reference renders of a faceted solid
 def test_verification_reports_robustness():
     scene = bumpy_lens()
     target = reference.trace_lens(scene, 512)  # a design that meets its target
-    report = verify_lens(scene, target, photons_per_axis=256, sun_samples=4, samples=(65, 65))
-    # measured 0.090 as designed (facets of the 65 x 65 sampled solid, see above), 0.136
-    # and 0.104 with the screen 5% nearer / farther, 0.136 under the Sun's disc
-    assert report.nominal < 0.15
+    report = verify_lens(scene, target, photons_per_axis=256, sun_samples=4, samples=(129, 129))
+    # parallel light: the solid's facets followed exactly (1 s; by photons, on a 65^2
+    # solid, it took 10 s). Measured 0.022 as designed (the facets of the 129^2 solid),
+    # 0.074 and 0.053 with the screen 5% nearer / farther, 0.127 under the Sun's disc. On
+    # a 65^2 solid the facets themselves are 0.094 off, and the farther screen (0.090)
+    # happens to do better: too coarse a solid to show what moving the screen costs.
+    assert report.nominal < 0.05
     assert report.screen_near > report.nominal and report.screen_far > report.nominal
     assert np.isfinite(report.sun) and report.sun < 0.2
     assert "Sun" in str(report)
