@@ -145,3 +145,21 @@ def test_the_facets_estimate_is_what_photon_traces_of_the_solid_converge_to():
     point = jc.MeshScene(solid.generator, jc.PointLight([0.05, 0.05, 1.0]), solid.receiver)
     with pytest.raises(ValueError, match="DirectionalLight"):
         reference.trace_solid_facets(point)
+
+
+def test_the_solid_is_traced_in_float64(monkeypatch):
+    """A `MeshScene` holds float32 vertices, whose steps at a solid's height (6e-8 m at
+    0.5 m) tilt fine facets: measured on a bump lens's 513^2 solid 0.5 m up, its facets
+    were 0.0058 off the smooth lens in float32 against 0.0031 in float64 (on the quickstart
+    lens 0.034 against 0.020). `verify_lens` hands the reference float64 vertices."""
+    seen = []
+    trace = reference.trace_solid_facets
+
+    def spy(scene, *args, **kwargs):
+        seen.append(np.asarray(scene.generator.vertices).dtype)
+        return trace(scene, *args, **kwargs)
+
+    monkeypatch.setattr(reference, "trace_solid_facets", spy)
+    scene = bumpy_lens()
+    verify_lens(scene, reference.trace_lens(scene, 128), sun_samples=1, samples=(33, 33))
+    assert seen and all(dtype == np.float64 for dtype in seen)
