@@ -38,8 +38,9 @@ def add_verify(subparsers) -> None:
         "--photons",
         type=int_at_least(16, MAX_PHOTONS_PER_AXIS),
         default=None,
-        help="the reference's photons per axis (default: 8 per target pixel side; 32 under "
-        "the Sun or an LED, whose samples share them)",
+        help="the reference's photons per axis, for a design under a point light or an LED "
+        "(default: 8 per target pixel side; 32 under an LED, whose samples share them); "
+        "under parallel light (no Fresnel) the solid's facets are followed exactly instead",
     )
     verify.set_defaults(func=run_verify)
 
