@@ -187,6 +187,10 @@ def test_accuracy_guide_tolerance_example_runs(tmp_path, monkeypatch):
     assert namespace["image"].shape == (300, 400)
 
 
+# 9 s (a lens and a glass ball rendered): on request, for the default run's time budget; the
+# method's renders of both scene kinds are tested in test_triangles and
+# test_triangles_reference
+@pytest.mark.slow
 def test_triangles_page_glass_example_runs(tmp_path, monkeypatch):
     monkeypatch.chdir(tmp_path)
     namespace = run_block("docs/methods/triangles.md", 0)
