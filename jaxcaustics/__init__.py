@@ -37,12 +37,9 @@ from .inverse.verify import Verification, relative_l2, verify_lens
 from .io.images import read_image, write_png
 from .methods.base import Method, RenderResult
 from .methods.batch import render_batch
-from .methods.caustic_map.method import (
-    AdaptiveCausticMap,
-    CausticsMapping,
-    PinholeCamera,
-    camera_image,
-)
+from .methods.caustic_map.adaptive import AdaptiveCausticMap
+from .methods.caustic_map.camera import PinholeCamera, camera_image
+from .methods.caustic_map.method import CausticsMapping
 from .methods.choose import image_error, reference_image
 from .methods.registry import method_for
 from .methods.render import render

@@ -13,6 +13,7 @@ from .inverse.export import ManufacturabilityReport, lens_height_map, lens_solid
 from .inverse.numerics import area_average
 from .inverse.transport import TransportMap, transport_map
 from .inverse.variants import design_lens_variants
+from .methods.caustic_map.adaptive import adaptive_caustic_map
 from .methods.caustic_map.gbuffer import (
     GeometryBuffers,
     geometry_buffers,
@@ -23,7 +24,6 @@ from .methods.caustic_map.gbuffer import (
 from .methods.caustic_map.light_view import LightView, light_view
 from .methods.caustic_map.method import (
     CausticMapResult,
-    adaptive_caustic_map,
     caustics_mapping,
     photon_bytes,
     project_caustic_map,

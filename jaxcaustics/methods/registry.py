@@ -13,7 +13,8 @@ from ..scene.mesh import MeshScene
 from ..scene.mirror import MirrorScene
 from ..scene.scene import LensScene, WaterScene
 from .base import Method
-from .caustic_map.method import AdaptiveCausticMap, CausticsMapping
+from .caustic_map.adaptive import AdaptiveCausticMap
+from .caustic_map.method import CausticsMapping
 from .spot_lights.method import SpotLightMethod
 from .triangles.method import CausticTriangles
 from .twopass import TwoPass
