@@ -67,7 +67,7 @@ def main(argv=None):
 
     # 2. Export for fabrication: solids, height maps and the manufacturability report.
     t0 = time.perf_counter()
-    paths = jc.export_lens(design.scene, out)
+    paths = jc.export_lens(design.scene, out, formats=("stl", "obj"))
     export_s = time.perf_counter() - t0
     print(paths["report_txt"].read_text().rstrip())
 

@@ -43,8 +43,8 @@ def test_design_writes_a_millable_lens_and_resumes_to_the_same_result(tmp_path, 
     solid = trimesh.load(straight / "lens.stl")
     assert solid.is_watertight
     assert solid.extents[0] == pytest.approx(80.0, rel=1e-6)  # millimetres
+    assert not (straight / "lens.obj").exists()  # binary STL only, by default
     for name in (
-        "lens.obj",
         "lens_height.png",
         "lens_height.exr",
         "predicted.png",

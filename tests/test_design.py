@@ -670,18 +670,20 @@ def test_the_rim_of_a_design_steers_its_light_like_its_neighbours(silhouette_des
 
 def test_a_heights_grid_too_large_for_the_machine_is_refused_before_any_work(monkeypatch):
     """``levels=(4096,)`` once ran on to 9 GB in 10 s; the estimate (1.3 kB a sample,
-    measured) is refused above half the machine's memory (here made 16 GiB)."""
+    measured) is refused above `memory_limit`, by default half the machine's memory (here
+    made 16 GiB)."""
     pages = {"SC_PAGE_SIZE": 4096, "SC_PHYS_PAGES": (16 << 30) // 4096}
     monkeypatch.setattr(lens_setup.os, "sysconf", lambda name: pages[name])
+    assert lens_setup.default_memory_limit() == 8 << 30
     with pytest.raises(ValueError, match="levels"):
         design_lens(blob(), **SPEC, levels=(4096,), start="poisson")
-    # a 4096^2 target: its heights grid is the cost (the prediction's photons are capped
-    # at one trace's memory limit, 1 GiB: `test_the_default_prediction_fits_one_trace`)
+    # a 4096^2 target: its heights grid is the cost (the prediction is traced in bands)
     with pytest.raises(ValueError, match=r"heights grid \(4096, 4096\).*`heights_shape`"):
         design_lens(np.ones((4096, 4096)), **SPEC)
-    lens_setup._check_design_memory((1024, 1024), 2, 0)  # 6.1 GiB: fine
-    with pytest.raises(ValueError, match="GiB"):  # with the refinement's 4 GiB: not
-        lens_setup._check_design_memory((1024, 1024), 2, image_refine._REFINE_MEMORY)
+    eight = lens_setup.default_memory_limit()
+    lens_setup._check_design_memory((1024, 1024), 2, 0, eight)  # 6.1 GiB: fine
+    with pytest.raises(ValueError, match="GiB.*`memory_limit`"):  # with 4 GiB more: not
+        lens_setup._check_design_memory((1024, 1024), 2, image_refine._REFINE_MEMORY, eight)
 
 
 def test_a_minimiser_object_designs_on_the_half_sum_of_squares():
@@ -695,20 +697,14 @@ def test_a_minimiser_object_designs_on_the_half_sum_of_squares():
     assert len(history) >= 2 and history[-1] < history[0]
 
 
-def test_the_default_prediction_fits_one_trace():
-    """4 photons a pixel side, or as many as one trace's memory limit takes: a 512-pixel
-    target's 2049^2 needed 1025 MiB of the 1024 and failed after its whole design (a
-    4 x 512 banner too)."""
-    import jax.numpy as jnp
-
+def test_the_default_prediction_has_four_photons_a_pixel_side():
+    """4 photons a pixel side at any size: a 512-pixel target's 2049^2 photons were once
+    capped at the 1 GiB of one trace (2047); they are now traced in bands when they do
+    not fit (`test_design_memory`)."""
     from jaxcaustics.inverse.lens_setup import predict_photons_default
-    from jaxcaustics.methods.triangles.method import band_bytes
 
-    dtype = jnp.result_type(float)  # the default's: float32, float64 under x64
     assert predict_photons_default((128, 128)) == 513
-    n = predict_photons_default((4, 512))
-    assert n < 2049 and band_bytes(n * n, 1, dtype) <= 1 << 30
-    assert band_bytes((n + 1) ** 2, 1, dtype) > 1 << 30
+    assert predict_photons_default((4, 512)) == 2049
 
 
 def _bevel_setup(thickness: float, zenith_deg: float) -> SimpleNamespace:

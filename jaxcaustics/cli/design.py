@@ -48,6 +48,7 @@ from .flags import (
     folder,
     int_at_least,
     length,
+    memory_size,
     number,
     output_folder,
     resume_checkpoint,
@@ -203,6 +204,22 @@ def add_design(subparsers) -> None:
     design.add_argument(
         "--tool-radius", type=length, default=0.001, help="ball-end mill radius (1mm)"
     )
+    design.add_argument(
+        "--formats",
+        type=mesh_formats,
+        default=("stl",),
+        metavar="LIST",
+        help="mesh files of the solid, comma-separated among stl, obj, ply (default: stl, "
+        "binary; a 1024^2-sample solid is 420 MB as STL, 350 MB more as OBJ)",
+    )
+    design.add_argument(
+        "--memory-limit",
+        type=memory_size,
+        default=None,
+        metavar="SIZE",
+        help="memory the design may take, e.g. 8G or 512M (default: half of this machine's); "
+        "a design estimated over it is refused before it starts",
+    )
     design.add_argument("--output", type=folder, default=Path("design"), help="output folder")
     design.add_argument(
         "--resume", action="store_true", help="continue from the output folder's checkpoint"
@@ -211,6 +228,17 @@ def add_design(subparsers) -> None:
         "--verify", action="store_true", help="render the exported solid with the reference"
     )
     design.set_defaults(func=with_flags(run_design, _DESIGN_FLAGS, _DESIGN_PHRASES))
+
+
+def mesh_formats(text: str) -> tuple[str, ...]:
+    """`--formats`: a comma-separated list of mesh formats (stl, obj, ply)."""
+    formats = tuple(part.strip().lower() for part in text.split(",") if part.strip())
+    unknown = [f for f in formats if f not in ("stl", "obj", "ply")]
+    if not formats or unknown:
+        raise argparse.ArgumentTypeError(
+            f"expected stl, obj or ply (comma-separated), got {text!r}"
+        )
+    return tuple(dict.fromkeys(formats))
 
 
 # the library's argument names of `design_lens` and `export_lens` -> the design's flags
@@ -228,6 +256,8 @@ _DESIGN_FLAGS = {
     "max_relief": "--max-relief",
     "tool_radius_mm": "--tool-radius",
     "solver": "--solver",
+    "memory_limit": "--memory-limit",
+    "formats": "--formats",
 }
 # the files a design writes into `--output` (`export_lens`'s with name "lens")
 _WRITTEN = [
@@ -420,6 +450,7 @@ def run_design(args: argparse.Namespace) -> int:
             checkpoint=checkpoint,
             resume=args.resume,
             progress=True,
+            memory_limit=args.memory_limit,
         )
     except KeyboardInterrupt as stop:
         print(f"{stop or 'design interrupted'}; rerun with --resume")
@@ -433,6 +464,7 @@ def run_design(args: argparse.Namespace) -> int:
         out,
         thickness=args.thickness if mirror else None,
         tool_radius_mm=args.tool_radius * 1000,
+        formats=args.formats,
     )
     write_png(out / "predicted.png", design.predicted)
     write_png(out / "target.png", target)
@@ -484,7 +516,8 @@ def run_design(args: argparse.Namespace) -> int:
     for note in design.warnings:  # again, after the progress bar, in the flags' words
         print(f"warning: {translate(note, _DESIGN_FLAGS, _DESIGN_PHRASES)}")
     print((out / "lens_report.txt").read_text() if (out / "lens_report.txt").exists() else "")
-    print(f"wrote {out}/ (lens.stl, lens.obj, height maps, design.json, predicted.png, loss.png)")
+    meshes = ", ".join(f"lens.{fmt}" for fmt in args.formats)
+    print(f"wrote {out}/ ({meshes}, height maps, design.json, predicted.png, loss.png)")
     return 0
 
 

@@ -31,6 +31,21 @@ def length(text: str) -> float:
     return value
 
 
+BYTES = {"": 1, "k": 1 << 10, "m": 1 << 20, "g": 1 << 30, "t": 1 << 40}
+
+
+def memory_size(text: str) -> int:
+    """A memory size in bytes (``12G``, ``512M``, ``8GiB``, ``16GB``; binary units, a
+    bare number is bytes)."""
+    match = re.fullmatch(r"\s*([0-9]*\.?[0-9]+)\s*([kKmMgGtT]?)(?:i?[bB])?\s*", text)
+    if not match:
+        raise argparse.ArgumentTypeError(f"expected a size such as 12G or 512M, got {text!r}")
+    value = int(float(match.group(1)) * BYTES[match.group(2).lower()])
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"a memory size must be at least 1 byte, got {text!r}")
+    return value
+
+
 def int_at_least(minimum: int, maximum: int | None = None) -> Callable[[str], int]:
     """An argparse type: an integer of at least `minimum` (and at most `maximum`)."""
 

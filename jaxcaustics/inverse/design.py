@@ -134,6 +134,7 @@ def design(
     checkpoint: str | os.PathLike | None = None,
     resume: bool = False,
     progress: bool = False,
+    memory_limit: int | None = None,
 ) -> LensDesign:
     """Design the element of `problem` whose caustic on the screen matches `target`.
 
@@ -166,6 +167,11 @@ def design(
       of another target, problem, strategy or option is refused). Ctrl-C raises
       `KeyboardInterrupt` and leaves the last round's checkpoint.
     - `progress`: show a progress bar over the rounds.
+    - `memory_limit`: bytes the design may take (``None``: half of this machine's
+      memory, `default_memory_limit`). Its peak is estimated before anything is
+      compiled (`design_memory`) and a design over the limit is refused, naming the
+      knobs that lower it; the predicted caustic's photons are traced in bands within
+      it.
 
     **Returns:** a `LensDesign`. A bad problem or option raises `ValueError` naming it
     before anything is compiled. A design whose predicted error exceeds `warn_error`, or
@@ -197,6 +203,7 @@ def design(
         predict_photons=predict_photons,
         warn_error=warn_error,
         initial=initial,
+        memory_limit=memory_limit,
     )
     history: list[float] = []
     h, reports, result = _solve(setup, history, callback, throw, checkpoint, resume, progress)
@@ -249,6 +256,7 @@ def design_lens(
     warn_error: float = 0.15,
     refine_steps: int | None = None,
     refine_photons: int | None = None,
+    memory_limit: int | None = None,
 ) -> LensDesign:
     """Design the height-field top surface of a caustic lens whose caustic on a screen
     matches `target`: `design` with its problem and strategies given as keywords.
@@ -280,7 +288,7 @@ def design_lens(
       of two from 32 up to twice the target's longer side (heights finer than the
       pixels: a photon cell per half pixel). With the transport start only the last
       entry counts (the heights grid); default: the target's longer side times 4, at
-      most 512 (`transport_shape`).
+      most 1024 (`transport_shape`).
     - `max_steps`: solver steps per level (the landing fit's steps).
     - `solver`: ``"levenberg_marquardt"`` or ``"gauss_newton"`` (least squares, both
       with Lineax `NormalCG`, matrix-free, `cg_steps` iterations at most), a minimiser
@@ -325,6 +333,8 @@ def design_lens(
     - `initial`: heights (metres, any grid shape) to start the first level from instead
       of the weak-lens Poisson solution (how a run is continued level by level), or
       the landing fit from instead of flat.
+    - `memory_limit`: bytes the design may take (`design`'s; default half of this
+      machine's memory).
 
     `design_lens(target, width=w, height=h, thickness=t, screen_distance=d, ...)` is
     ``design(DesignProblem(Lens(t, ior), Rectangle(w, h), Screen(d, screen_extent),
@@ -374,6 +384,7 @@ def design_lens(
         initial=initial,
         callback=callback,
         throw=throw,
+        memory_limit=memory_limit,
     )
 
 

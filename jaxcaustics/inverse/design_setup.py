@@ -45,6 +45,9 @@ class Setup:
     # `goal` is the target deconvolved by it and `seen` the target itself
     kernel: Any = None
     seen: Any = None
+    # bytes the design may take (`lens_setup.check_design_memory_limit`): the predicted
+    # caustic is traced in bands within it, the image refinement's rasteriser in part of it
+    memory_limit: int = 4 << 30
 
     width = property(lambda self: self.problem.outline.width)
     height = property(lambda self: self.problem.outline.height)

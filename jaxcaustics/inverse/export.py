@@ -194,7 +194,7 @@ def export_lens(
     min_thickness_mm=1.0,
     max_slope_deg=60.0,
     margin_mm=0.0,
-    formats: Sequence[str] = ("stl", "obj"),
+    formats: Sequence[str] = ("stl",),
 ) -> dict[str, Path]:
     """Writes a lens for fabrication: meshes, height maps and a manufacturability report.
 
@@ -221,7 +221,9 @@ def export_lens(
     - `samples`: ``(rows, cols)`` of the mesh and height-map grid (see `lens_height_map`).
     - `tool_radius_mm`, `min_thickness_mm`, `max_slope_deg`, `margin_mm`: for the report
       (see `manufacturability`).
-    - `formats`: mesh formats to write, among ``"stl"``, ``"obj"``, ``"ply"``.
+    - `formats`: mesh formats to write, among ``"stl"`` (binary; the default),
+      ``"obj"``, ``"ply"``. A 1024^2-sample design's solid holds 8.4M faces: 420 MB as
+      binary STL, 350 MB more as OBJ (measured: 105 MB and 87 MB at 1025^2).
 
     **Returns:** a dict of the written paths with keys the mesh formats and
     ``"height_png"``, ``"height_json"``, ``"height_exr"``, ``"report_json"``,

@@ -44,6 +44,8 @@ class _ImageRefine(eqx.Module):
     window: int = eqx.field(static=True)
     dark_weight: float = eqx.field(static=True)
     kernel: jax.Array | None = None  # an extended source's image on the screen
+    # the caustic triangles' buffers (bytes): `refine_memory`
+    memory_limit: int = eqx.field(static=True, default=4 << 30)
 
     def heights(self, u):
         coef = jax.scipy.fft.dctn(u, type=2, norm="ortho") / self.root_symbol
@@ -60,7 +62,7 @@ class _ImageRefine(eqx.Module):
         h = self.heights(u)
         scene = eqx.tree_at(lambda sc: sc.surface.heights, self.scene, h - jnp.max(h))
         e = caustic_triangles.unchecked(
-            scene, photons=self.photons, window=self.window, memory_limit=_REFINE_MEMORY
+            scene, photons=self.photons, window=self.window, memory_limit=self.memory_limit
         ).image
         if self.kernel is not None:  # as seen under the source
             e = jax.scipy.signal.convolve2d(e, self.kernel, mode="same")
@@ -76,6 +78,12 @@ class _ImageRefine(eqx.Module):
 # photons (2.7 GB peak with the gradient; at the 1 GiB default, two batches and a
 # checkpointed scan cost 1.6x the time per step)
 _REFINE_MEMORY = 4 << 30
+
+
+def refine_memory(memory_limit: int) -> int:
+    """The refinement's rasteriser budget (bytes) within a design's `memory_limit`:
+    `_REFINE_MEMORY`, or half the limit where that is less."""
+    return min(_REFINE_MEMORY, memory_limit // 2)
 
 
 # jitted: eager, the DCTs at 512^2 cost seconds in per-op compilations
@@ -210,6 +218,7 @@ class ImageRefinement(eqx.Module):
             4,
             0.3,
             None if setup.kernel is None else jnp.asarray(setup.kernel, dtype),
+            refine_memory(setup.memory_limit),
         )
         u0 = _refine_variable(refine, jnp.asarray(h, dtype))
         t0 = time.perf_counter()

@@ -75,15 +75,18 @@ def _lens(scene_or_surface, thickness) -> tuple[HeightField, float]:
 
 
 def _check_samples(samples, surface: HeightField, factor: int) -> tuple[int, int]:
+    """`samples` checked, or by default `factor` points per height sample (plus one),
+    fewer (2, then 1) where that grid would have over `MAX_SAMPLES` points (the report's
+    4 per sample of a 1024^2 design: 4097^2)."""
     if samples is None:
         rows, cols = surface.shape
-        rows, cols = factor * rows + 1, factor * cols + 1
-        if rows * cols > MAX_SAMPLES:
-            raise ValueError(
-                f"`samples`: the default grid {(rows, cols)} ({factor} per height sample) "
-                f"has over {MAX_SAMPLES} points; pass a smaller `samples`"
-            )
-        return rows, cols
+        for f in sorted({factor, min(factor, 2), 1}, reverse=True):
+            if (f * rows + 1) * (f * cols + 1) <= MAX_SAMPLES:
+                return f * rows + 1, f * cols + 1
+        raise ValueError(
+            f"`samples`: the default grid {(rows + 1, cols + 1)} (one per height sample) "
+            f"has over {MAX_SAMPLES} points; pass a smaller `samples`"
+        )
     return check_shape(samples, "samples", 2, max_size=MAX_SAMPLES)
 
 

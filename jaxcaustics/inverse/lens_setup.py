@@ -13,13 +13,12 @@ import jax.numpy as jnp
 import numpy as np
 
 from .._checks import (
-    DEFAULT_MEMORY_LIMIT,
     check_int,
     check_number,
+    check_photon_work,
     check_real_array,
     check_shape,
 )
-from ..methods.triangles.method import band_bytes
 from ..scene.scene import (
     DirectionalLight,
     HeightField,
@@ -29,7 +28,7 @@ from ..scene.scene import (
     emission,
 )
 from .design_setup import Setup
-from .image_refine import _REFINE_MEMORY, ImageRefinement
+from .image_refine import ImageRefinement, refine_memory
 from .lens_model import aperture_coverage
 from .numerics import area_average, check_irradiance, neumann_poisson
 from .poisson_levels import PoissonLevels
@@ -116,6 +115,8 @@ def _flat_lens(light, aperture, thickness: float, screen_distance: float, ior: f
 # bytes per height sample of the finest level (measured: peak memory of one Poisson step,
 # 0.83 GB at 256^2 heights and 1.08 GB at 512^2: 1.3 kB a sample), and the fixed part
 _BYTES_PER_SAMPLE, _BYTES_FIXED = 1300, 1 << 30
+# a machine that does not say how much memory it has is taken to have this (bytes)
+_UNKNOWN_MEMORY = 8 << 30
 
 
 def _physical_memory() -> int | None:
@@ -126,56 +127,58 @@ def _physical_memory() -> int | None:
         return None
 
 
-def _check_design_memory(shape, oversample: int, extra: int, photons: int = 0) -> None:
-    """Refuse, before anything is compiled, a design whose estimated memory exceeds
-    half of this machine's (it would swap or be killed after minutes of work): the
-    (largest) heights grid `shape` times `oversample`^2 photon cells, `extra` bytes,
-    and the predicted caustic's grid of `photons`^2 photons (traced at once)."""
-
-    samples = shape[0] * shape[1] * oversample**2
-    grid = _BYTES_PER_SAMPLE * samples
-    predicted = band_bytes(photons * photons, 1, jnp.result_type(float))
-    estimate = _BYTES_FIXED + extra + grid + predicted
+def default_memory_limit() -> int:
+    """A design's `memory_limit` by default: half of this machine's memory (bytes; 4 GiB
+    where the platform does not say). More would swap, or be killed after minutes of
+    work."""
     physical = _physical_memory()
-    if physical is None or estimate <= 0.5 * physical:
+    return (physical or _UNKNOWN_MEMORY) // 2
+
+
+def check_design_memory_limit(memory_limit) -> int:
+    """`memory_limit` of a design (bytes; ``None``: `default_memory_limit`), checked: at
+    least the fixed part of a design's memory (`_BYTES_FIXED`, 1 GiB)."""
+    if memory_limit is None:
+        return default_memory_limit()
+    limit = check_int(memory_limit, "memory_limit", 1)
+    if limit < _BYTES_FIXED:
+        raise ValueError(
+            f"`memory_limit` {limit} bytes: a design needs at least {_BYTES_FIXED} bytes "
+            "(1 GiB: the compiled solvers and their buffers)"
+        )
+    return limit
+
+
+def design_memory(shape, oversample: int, extra: int) -> int:
+    """The estimated peak memory of a design (bytes): the (largest) heights grid `shape`
+    times `oversample`^2 photon cells at `_BYTES_PER_SAMPLE` each, `extra` bytes (the
+    image refinement's rasteriser budget), and the fixed part. The predicted caustic is
+    traced in bands within the limit and is not counted."""
+    return _BYTES_FIXED + extra + _BYTES_PER_SAMPLE * shape[0] * shape[1] * oversample**2
+
+
+def _check_design_memory(shape, oversample: int, extra: int, memory_limit: int) -> None:
+    """Refuse, before anything is compiled, a design whose estimated memory
+    (`design_memory`) exceeds `memory_limit` (it would swap or be killed after minutes
+    of work), naming the estimate, the limit and the knobs that lower it."""
+    estimate = design_memory(shape, oversample, extra)
+    if estimate <= memory_limit:
         return
+    grid = estimate - _BYTES_FIXED - extra
     knobs = "`levels` or `heights_shape`" + (" or `oversample`" if oversample > 1 else "")
     knobs += " (the grid follows the target's size by default)"
-    if predicted > grid:
-        knobs = "`predict_photons` (4 per pixel side of the target's size by default)"
     raise ValueError(
         f"the design needs about {estimate / 2**30:.1f} GiB (heights grid {tuple(shape)}: "
-        f"{grid / 2**30:.1f} GiB at {_BYTES_PER_SAMPLE} bytes a sample; the predicted "
-        f"caustic's {photons}^2 photons: {predicted / 2**30:.1f} GiB), more than half of "
-        f"this machine's {physical / 2**30:.1f} GiB: lower {knobs}"
+        f"{grid / 2**30:.1f} GiB at {_BYTES_PER_SAMPLE} bytes a sample), over `memory_limit` "
+        f"({memory_limit / 2**30:.1f} GiB; by default half of this machine's memory): lower "
+        f"{knobs}, or raise `memory_limit`"
     )
 
 
 def predict_photons_default(target_shape) -> int:
-    """The predicted caustic's photons per side by default: 4 per pixel side, or as
-    many as one trace fits in the default `memory_limit` (a 512-pixel target's 2049^2
-    photons need 1025 MiB: 2047 then; the design failed after all its work)."""
-    return min(4 * max(target_shape) + 1, _photons_that_fit())
-
-
-def _photons_that_fit() -> int:
-    """The most photons per side whose trace fits in `DEFAULT_MEMORY_LIMIT`."""
-    dtype = jnp.result_type(float)
-    n = int(np.sqrt(DEFAULT_MEMORY_LIMIT / band_bytes(1, 1, dtype))) + 1
-    while n > 2 and band_bytes(n * n, 1, dtype) > DEFAULT_MEMORY_LIMIT:
-        n -= 1
-    return n
-
-
-def _check_predict_photons(n: int) -> None:
-    """`predict_photons` given: its trace must fit in the default `memory_limit`,
-    checked before the design (it failed after it, naming `grid`)."""
-    most = _photons_that_fit()
-    if n > most:
-        raise ValueError(
-            f"`predict_photons` {n}: its {n}^2 photons, traced at once, need more than the "
-            f"{DEFAULT_MEMORY_LIMIT / 2**20:.0f} MiB a trace may take; at most {most}"
-        )
+    """The predicted caustic's photons per side by default: 4 per pixel side (traced in
+    bands when they do not fit in `memory_limit` at once)."""
+    return 4 * max(target_shape) + 1
 
 
 def _check_initial(initial) -> None:
@@ -203,6 +206,7 @@ def prepare(
     predict_photons=None,
     warn_error=0.15,
     initial=None,
+    memory_limit=None,
 ) -> Setup:
     """Check a design (`ValueError` naming the argument) and compute what the stages
     need: the screen, the scaled target, the weak-lens constant, the grids."""
@@ -223,7 +227,8 @@ def prepare(
         raise ValueError("`target` is zero everywhere inside `mask`: there is no light to place")
     if predict_photons is not None:
         predict_photons = check_int(predict_photons, "predict_photons", 2)
-        _check_predict_photons(predict_photons)
+        check_photon_work(predict_photons**2, 1, "predict_photons")
+    memory_limit = check_design_memory_limit(memory_limit)
     if initial is not None:
         _check_initial(initial)
     if max_relief is not None:
@@ -247,12 +252,10 @@ def prepare(
     if heights_shape is not None:
         shapes[-1] = check_shape(heights_shape, "heights_shape", 4)
     # the image refinement adds its rasteriser budget
-    extra = _REFINE_MEMORY if finish is not None else 0
+    extra = refine_memory(memory_limit) if finish is not None else 0
     oversample = start.oversample
     largest = max(shapes, key=lambda s: s[0] * s[1])
-    _check_design_memory(
-        largest, oversample, extra, predict_photons or predict_photons_default(t.shape)
-    )
+    _check_design_memory(largest, oversample, extra, memory_limit)
     aperture = problem.outline.extent
     dtype = jnp.result_type(float)
     pose = screen_pose(problem)
@@ -337,6 +340,7 @@ def prepare(
         max_relief=max_relief,
         initial=initial,
         timings=timings,
+        memory_limit=memory_limit,
         warn_error=float(warn_error),
         pose=pose,
         flips=flips,

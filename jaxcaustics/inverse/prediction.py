@@ -6,10 +6,17 @@ the landing point also moves with the surface's height. See the design notes
 
 from __future__ import annotations
 
+import jax.numpy as jnp
 import numpy as np
 from scipy.ndimage import gaussian_filter
 
-from ..methods.triangles.method import trace_photons, triangle_window, triangles_image
+from ..methods.triangles.method import (
+    band_bytes,
+    caustic_triangles,
+    trace_photons,
+    triangle_window,
+    triangles_image,
+)
 from ..scene.mirror import MirrorScene
 from ..scene.scene import LensScene
 from .design_setup import Setup
@@ -23,9 +30,18 @@ _CLIP = (0.5, 2.0)  # the correction's ratio, per round
 def predict_caustic(setup: Setup, h) -> tuple[np.ndarray, float, int, LensScene | MirrorScene]:
     """The caustic of `setup`'s element with heights `h` (caustic triangles at the
     design's `predict_photons`): ``(image (rows, cols), flux fraction missed, window,
-    scene)``."""
+    scene)``. Photons that fit in half of the design's `memory_limit` are traced at
+    once; more are traced and drawn in bands of rows (`caustic_triangles`' banded
+    render: the same image, `test_design_memory`)."""
     scene = setup.element_scene(h)
     n_pred = setup.predict_photons or predict_photons_default(setup.target_shape)
+    if band_bytes(n_pred * n_pred, 1, jnp.result_type(float)) > setup.memory_limit // 2:
+        result = caustic_triangles(
+            scene, photons=n_pred, window=PREDICT_WINDOW, memory_limit=setup.memory_limit
+        )
+        image = np.asarray(result.image)
+        missed = float(np.asarray(result.missed_flux_fraction).ravel()[0])
+        return image if image.ndim == 2 else image[..., 0], missed, PREDICT_WINDOW, scene
     # the window that holds 99.9% of the flux, at most PREDICT_WINDOW pixels: the few
     # triangles stretched across a dark gap would otherwise size it (32 pixels: 4x the
     # time of 16 for 0.26% of the image, measured on a design for a dozen dots)

@@ -38,7 +38,13 @@ from .numerics import area_average, binomial_smooth, resample_corner_grid, resam
 from .screen_geometry import flat_landing
 from .transport import MAX_ITERATIONS, transport_map
 
-TRANSPORT_MAX = 512  # the transport grid's longest side, at most
+# the transport grid's longest side, at most. Four heights samples (and transport cells)
+# per target pixel side are what a photo needs: the back-and-forth transport leaves a
+# one-cell staircase in its map (the cells' areas alternate by +-40% where the map
+# compresses), averaged over the pixel's cells. Measured on the camera at 256^2, judged
+# by the exported solid's facets: relative L2 0.041 and 1 - SSIM 0.167 at 512^2 heights
+# (two per pixel: a fine cross-hatch over the sky), 0.020 and 0.047 at 1024^2 (41 s)
+TRANSPORT_MAX = 1024
 
 
 def transport_shape(target_shape: Sequence[int], width: float, height: float) -> tuple[int, int]:
