@@ -45,7 +45,7 @@ def predict_caustic(setup: Setup, h) -> tuple[np.ndarray, float, int, LensScene 
     # the window that holds 99.9% of the flux, at most PREDICT_WINDOW pixels: the few
     # triangles stretched across a dark gap would otherwise size it (32 pixels: 4x the
     # time of 16 for 0.26% of the image, measured on a design for a dozen dots)
-    photons = trace_photons(scene, (n_pred, n_pred))
+    photons = trace_photons(scene, (n_pred, n_pred), memory_limit=setup.memory_limit // 2)
     window = min(PREDICT_WINDOW, triangle_window(photons, scene.receiver))
     # drawn from these photons (`caustic_triangles` would trace them again: 4.5 s against
     # 2.5 s at 513^2, compilation included, the same image to 1e-7)
