@@ -27,7 +27,7 @@ import tempfile
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).parent))  # the harness beside this script
-from harness import environment, once, read_results, write_results  # noqa: E402
+from harness import environment, judge, once, read_results, write_results  # noqa: E402
 
 RESULTS = Path(__file__).parent / "results"
 NAME = "design_contrast"
@@ -68,19 +68,6 @@ def light(name: str | None):
     if name == "tilted":
         return DirectionalLight.from_angles(20.0)
     return None
-
-
-def judge(image, goal) -> dict:
-    import numpy as np
-    from skimage.metrics import structural_similarity
-
-    a = image / image.mean()
-    b = goal / goal.mean()
-    return dict(
-        l2=float(np.linalg.norm(a - b) / np.linalg.norm(b)),
-        ssim=float(1 - structural_similarity(a, b, data_range=float(b.max()))),
-        dark=float(a[b < 0.05].sum() / a.sum()),
-    )
 
 
 def one(row: str) -> dict:

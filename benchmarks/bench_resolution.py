@@ -21,7 +21,7 @@ import sys
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).parent))  # the harness beside this script
-from harness import once, rows_main  # noqa: E402
+from harness import judge, once, rows_main  # noqa: E402
 
 NAME = "resolution"
 PICTURES = ("camera", "silhouette", "lettering")
@@ -41,19 +41,6 @@ def target(name: str, size: int):
     import targets  # beside this script
 
     return np.asarray(targets.TARGETS[name](size))
-
-
-def judge(image, goal) -> dict:
-    import numpy as np
-    from skimage.metrics import structural_similarity
-
-    a = image / image.mean()
-    b = goal / goal.mean()
-    return dict(
-        l2=float(np.linalg.norm(a - b) / np.linalg.norm(b)),
-        ssim=float(1 - structural_similarity(a, b, data_range=float(b.max()))),
-        dark=float(a[b < 0.05].sum() / a.sum()),
-    )
 
 
 def one(row: str) -> dict:

@@ -196,6 +196,22 @@ def rows_main(name: str, script: str, rows, one, report, doc: str, argv=None) ->
     run_rows(name, script, args.rows, one, report, args.one)
 
 
+def judge(image, goal) -> dict:
+    """A design's image against its target, both at unit mean: relative L2, 1 - SSIM
+    (scikit-image) and the fraction of the flux on pixels where the target is below 5%
+    of its mean (``l2``, ``ssim``, ``dark``)."""
+    import numpy as np
+    from skimage.metrics import structural_similarity
+
+    a = image / image.mean()
+    b = goal / goal.mean()
+    return dict(
+        l2=float(np.linalg.norm(a - b) / np.linalg.norm(b)),
+        ssim=float(1 - structural_similarity(a, b, data_range=float(b.max()))),
+        dark=float(a[b < 0.05].sum() / a.sum()),
+    )
+
+
 def pick(parser, text: str, known, what: str) -> list[str]:
     """The comma-separated names in `text`; `parser.error` if one is not in `known`."""
     names = [n for n in text.split(",") if n]

@@ -290,3 +290,15 @@ def test_levels_that_do_not_grow_are_refused_by_name(tmp_path, capsys):
     assert main(args) == 2
     err = capsys.readouterr().err
     assert "`--levels` must increase" in err and len(err.strip().splitlines()) == 1, err
+
+
+def test_formats_are_a_list_of_mesh_kinds():
+    import argparse
+
+    from jaxcaustics.cli.design import mesh_formats
+
+    assert mesh_formats("stl") == ("stl",)
+    assert mesh_formats("STL, obj,stl") == ("stl", "obj")
+    for bad in ("", "step", "stl,3mf", ","):
+        with pytest.raises(argparse.ArgumentTypeError):
+            mesh_formats(bad)

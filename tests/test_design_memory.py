@@ -131,3 +131,22 @@ def test_the_cli_names_memory_limit(tmp_path, capsys):
     assert code != 0
     text = out.out + out.err
     assert "--memory-limit" in text and "Traceback" not in text
+
+
+def test_a_grid_below_four_samples_a_pixel_is_reported():
+    """A 512-pixel target's default grid (1024^2, two a pixel side) leaves the
+    transport's staircase in the image: the design says so (`LensDesign.warnings`)."""
+    from types import SimpleNamespace
+
+    from jaxcaustics.inverse.design import _design_warnings
+
+    def notes(grid, target):
+        setup = SimpleNamespace(
+            shapes=[grid], target_shape=target, start=jc.TransportStart(), warn_error=0.15
+        )
+        return _design_warnings(setup, [], 0.05, 0.0)
+
+    (note,) = notes((1024, 1024), (512, 512))
+    assert "2 samples per target pixel side" in note and "`heights_shape`" in note
+    assert notes((1024, 1024), (256, 256)) == []  # four a side
+    assert notes((128, 128), (128, 128)) == []  # small targets: as asked

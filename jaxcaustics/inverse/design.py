@@ -559,6 +559,16 @@ def _design_warnings(setup: Setup, reports, error: float, dark_flux: float) -> l
                 f"(loss {r['loss']:.3g}); raise `{limit}`"
                 + (" (the start's `iterations`)" if transport else "")
             )
+    side = max(setup.shapes[-1]) / max(setup.target_shape)
+    if isinstance(setup.start, TransportStart) and side < 4 and max(setup.target_shape) > 256:
+        notes.append(
+            f"design: the heights grid {tuple(setup.shapes[-1])} has {side:.3g} samples per "
+            "target pixel side; below 4 the transport's one-cell staircase shows as a fine "
+            "cross-hatch (measured on the camera, judged by the exported solid: 1 - SSIM "
+            "0.04 at 256 pixels with 4, 0.22 at 512 with 2, 0.60 at 1024 with 1): a larger "
+            "`heights_shape` (the transport's time grows with the cube of its side) or a "
+            "smaller target"
+        )
     if error > setup.warn_error:
         notes.append(
             f"design: the predicted caustic misses the target by {error:.3f} (relative L2, "
