@@ -142,6 +142,10 @@ def test_a_design_folder_describes_its_problem_and_verifies_from_itself(tmp_path
     # measured 0.141: a 16-pixel target on a round blank under 10-degree light (the square
     # lens there: 0.123; both 0.05-0.09 under vertical light); 128 photons per axis
     assert figures["nominal"] < 0.2, figures
+    # the design printed the same figure for its exported solid (the facets, exactly), up
+    # to the EXR's float32 millimetres that `verify` rebuilds the lens from (measured 8e-6)
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["exported_error"] == pytest.approx(figures["nominal"], rel=1e-4)
 
 
 def test_recover_rejects_bad_levels(tmp_path):

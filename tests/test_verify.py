@@ -163,3 +163,21 @@ def test_the_solid_is_traced_in_float64(monkeypatch):
     scene = bumpy_lens()
     verify_lens(scene, reference.trace_lens(scene, 128), sun_samples=1, samples=(33, 33))
     assert seen and all(dtype == np.float64 for dtype in seen)
+
+
+def test_the_exported_error_is_the_nominal_verification():
+    """`exported_error` (what `jaxcaustics design` prints): the nominal figure of
+    `verify_lens` alone; None where the facets do not apply (a point light)."""
+    from jaxcaustics.inverse.verify import exported_error
+
+    scene = bumpy_lens()
+    target = reference.trace_lens(scene, 256)
+    error = exported_error(scene, target, samples=(65, 65))
+    report = verify_lens(scene, target, samples=(65, 65))
+    assert error == pytest.approx(report.nominal, rel=1e-12)
+    assert 0.0 < error < 0.3
+    point = jc.LensScene(
+        scene.surface, jc.PointLight([0.05, 0.05, 1.0]), scene.receiver,
+        thickness=0.01, screen_distance=0.3,
+    )  # fmt: skip
+    assert exported_error(point, target) is None

@@ -290,6 +290,45 @@ def verify_lens(
     )
 
 
+def _parallel_directions(light: DirectionalLight, sun_samples: int):
+    """The directions a parallel light's figure is traced along, and their weights: the
+    light's own, or `sun_samples` over a `SunLight`'s disc."""
+    if isinstance(light, SunLight):
+        return reference.disc_directions(
+            np.asarray(light.direction, float),
+            light.angular_radius,
+            sun_samples,
+            light.limb_darkening,
+        )
+    return np.asarray(light.direction, float)[None], np.ones(1)
+
+
+def _facets_sum(vertices, faces, scene: LensScene, directions, weights) -> np.ndarray:
+    """The solid's caustic by its facets, summed over parallel `directions` with
+    `weights`."""
+    return sum(
+        w * _facets_image(vertices, faces, scene, d)
+        for d, w in zip(directions, weights, strict=True)
+    )
+
+
+def exported_error(scene, target, *, mask=None, samples=None, sun_samples: int = 7):
+    """The relative L2 error against `target` of the exported solid of `scene`'s lens (its
+    top sampled as `export_lens` writes it, or on `samples`), its flat facets traced
+    exactly (`reference.trace_solid_facets`, float64) at the nominal screen: the
+    design's error as exported, facets included. For a `LensScene` over the ground under
+    parallel light (a `DirectionalLight`, or a `SunLight`'s disc in `sun_samples`
+    directions) without Fresnel; None for any other scene (trace it with
+    `verify_lens`)."""
+    parallel = isinstance(scene, LensScene) and isinstance(scene.light, DirectionalLight)
+    if not parallel or scene.screen_pose is not None or scene.fresnel:
+        return None
+    target = _image(target, "target", scene.receiver.shape)
+    vertices, faces = _solid_in_place(scene, samples)
+    directions, weights = _parallel_directions(scene.light, sun_samples)
+    return relative_l2(_facets_sum(vertices, faces, scene, directions, weights), target, mask)
+
+
 def _verify_by_facets(scene, target, mask, screen_shift, sun_samples, samples) -> Verification:
     """`verify_lens` under parallel light (a `DirectionalLight` or `SunLight`, no Fresnel):
     the solid built once, each figure its flat facets followed exactly
@@ -303,17 +342,10 @@ def _verify_by_facets(scene, target, mask, screen_shift, sun_samples, samples) -
             np.asarray(direction, float), radius, sun_samples, darkening
         )
 
-    if isinstance(light, SunLight):
-        directions, weights = disc(light.direction, light.angular_radius, light.limb_darkening)
-    else:
-        directions, weights = np.asarray(light.direction, float)[None], np.ones(1)
+    directions, weights = _parallel_directions(light, sun_samples)
 
     def image(shift: float, directions, weights) -> np.ndarray:
-        moved = vertices + [0.0, 0.0, shift]
-        return sum(
-            w * _facets_image(moved, faces, scene, d)
-            for d, w in zip(directions, weights, strict=True)
-        )
+        return _facets_sum(vertices + [0.0, 0.0, shift], faces, scene, directions, weights)
 
     distance = float(scene.screen_distance)
     nominal = image(0.0, directions, weights)
