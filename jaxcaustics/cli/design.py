@@ -4,9 +4,9 @@ The design runs in rounds (the transport start, or each level of the Poisson sta
 the refinement); after every round the heights are written to a checkpoint
 (``design.ckpt`` in the output folder), so ``--resume`` continues an interrupted run
 (Ctrl-C keeps the last checkpoint) and ends where an uninterrupted run ends. Outputs:
-the solid as STL and OBJ (millimetres), the height map (16-bit PNG and EXR), the
-predicted caustic (PNG), the loss plot, the manufacturability report, and
-``design.json``, every parameter of the problem (element, index, outline, light, screen,
+the solid as binary STL (millimetres; ``--formats`` adds OBJ or PLY), the height map
+(16-bit PNG and EXR), the predicted caustic (PNG), the loss plot, the manufacturability
+report, and ``design.json``, every parameter of the problem (element, index, outline, light, screen,
 units, the target and how it was scaled), so that the folder alone is enough to verify
 the part (``jaxcaustics verify FOLDER``); ``--verify`` also renders the exported solid
 with the reference tracer (screen moved by 5%, the Sun's disc).
