@@ -40,8 +40,8 @@ def predict_caustic(setup: Setup, h) -> tuple[np.ndarray, float, int, LensScene 
             scene, photons=n_pred, window=PREDICT_WINDOW, memory_limit=setup.memory_limit
         )
         image = np.asarray(result.image)
-        missed = float(np.asarray(result.missed_flux_fraction).ravel()[0])
-        return image if image.ndim == 2 else image[..., 0], missed, PREDICT_WINDOW, scene
+        lost = float(np.asarray(result.missed_flux_fraction).ravel()[0])
+        return image if image.ndim == 2 else image[..., 0], lost, PREDICT_WINDOW, scene
     # the window that holds 99.9% of the flux, at most PREDICT_WINDOW pixels: the few
     # triangles stretched across a dark gap would otherwise size it (32 pixels: 4x the
     # time of 16 for 0.26% of the image, measured on a design for a dozen dots)

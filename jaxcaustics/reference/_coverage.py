@@ -85,8 +85,8 @@ def bin_triangles(u: np.ndarray, v: np.ndarray, flux: np.ndarray, shape) -> np.n
     bounds = np.flatnonzero(np.diff(key)) + 1
     for group in np.split(order, bounds) if len(order) else []:
         w, h = int(width[group[0]]), int(height[group[0]])
-        dj, di = np.meshgrid(np.arange(w), np.arange(h))
-        dj, di = dj.ravel(), di.ravel()  # (P,) the candidate pixels' offsets
+        grid_j, grid_i = np.meshgrid(np.arange(w), np.arange(h))
+        dj, di = grid_j.ravel(), grid_i.ravel()  # (P,) the candidate pixels' offsets
         step = max(1, _CHUNK // len(dj))
         for lo in range(0, len(group), step):
             t = group[lo : lo + step]
