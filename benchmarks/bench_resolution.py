@@ -49,10 +49,9 @@ def one(row: str) -> dict:
     import warnings
 
     import jax
-    import numpy as np
 
     import jaxcaustics as jc
-    from jaxcaustics.inverse.verify import _facets_image, _solid_in_place
+    from jaxcaustics.internal import exported_image
 
     name, size = row.rsplit("-", 1)
     goal = target(name, int(size))
@@ -63,11 +62,7 @@ def one(row: str) -> dict:
         warnings.simplefilter("always")
         total, d = once(lambda: jc.design(problem, goal, throw=False))
     peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024  # Linux: kB
-    judge_s, image = once(
-        lambda: _facets_image(
-            *_solid_in_place(d.scene), d.scene, np.asarray(d.scene.light.direction, float)
-        )
-    )
+    judge_s, image = once(lambda: exported_image(d.scene))
     firsts = [lev.get("first_step_seconds", float("nan")) for lev in d.levels]
     return dict(
         row=row,

@@ -13,6 +13,7 @@ from .inverse.export import ManufacturabilityReport, lens_height_map, lens_solid
 from .inverse.numerics import area_average
 from .inverse.transport import TransportMap, transport_map
 from .inverse.variants import design_lens_variants
+from .inverse.verify import exported_error, exported_image
 from .methods.caustic_map.adaptive import adaptive_caustic_map
 from .methods.caustic_map.gbuffer import (
     GeometryBuffers,
@@ -145,4 +146,6 @@ __all__ = [
     "design_lens_variants",
     "fresnel_zones",
     "area_average",  # a picture averaged down to a target's pixels
+    "exported_image",  # the exported solid's caustic by its facets, exactly
+    "exported_error",
 ]

@@ -133,7 +133,10 @@ def test_a_diverged_design_stage_is_named_as_such_not_as_a_step_limit():
 
     report = {"stage": "irradiance", "shape": (32, 32), "steps": 7, "loss": 1.0,
               "result": optx.RESULTS.nonlinear_divergence}  # fmt: skip
-    notes = design._design_warnings(types.SimpleNamespace(warn_error=0.15), [report], 0.1, 0.0)
+    setup = types.SimpleNamespace(
+        warn_error=0.15, shapes=[(32, 32)], target_shape=(16, 16), start=None
+    )
+    notes = design._design_warnings(setup, [report], 0.1, 0.0)
     assert len(notes) == 1 and "(32, 32) diverged at step 7" in notes[0], notes
     assert "`solver`" in notes[0] and design._stopped(report)
 

@@ -312,21 +312,28 @@ def _facets_sum(vertices, faces, scene: LensScene, directions, weights) -> np.nd
     )
 
 
-def exported_error(scene, target, *, mask=None, samples=None, sun_samples: int = 7):
-    """The relative L2 error against `target` of the exported solid of `scene`'s lens (its
-    top sampled as `export_lens` writes it, or on `samples`), its flat facets traced
-    exactly (`reference.trace_solid_facets`, float64) at the nominal screen: the
-    design's error as exported, facets included. For a `LensScene` over the ground under
-    parallel light (a `DirectionalLight`, or a `SunLight`'s disc in `sun_samples`
-    directions) without Fresnel; None for any other scene (trace it with
-    `verify_lens`)."""
+def exported_image(scene, *, samples=None, sun_samples: int = 7) -> np.ndarray | None:
+    """The caustic of the exported solid of `scene`'s lens (its top sampled as
+    `export_lens` writes it, or on `samples`) at the nominal screen, its flat facets
+    traced exactly (`reference.trace_solid_facets`, float64), ``(rows, cols)``. For a
+    `LensScene` over the ground under parallel light (a `DirectionalLight`, or a
+    `SunLight`'s disc in `sun_samples` directions) without Fresnel; None for any other
+    scene (trace it with `verify_lens`)."""
     parallel = isinstance(scene, LensScene) and isinstance(scene.light, DirectionalLight)
     if not parallel or scene.screen_pose is not None or scene.fresnel:
         return None
-    target = _image(target, "target", scene.receiver.shape)
     vertices, faces = _solid_in_place(scene, samples)
     directions, weights = _parallel_directions(scene.light, sun_samples)
-    return relative_l2(_facets_sum(vertices, faces, scene, directions, weights), target, mask)
+    return _facets_sum(vertices, faces, scene, directions, weights)
+
+
+def exported_error(scene, target, *, mask=None, samples=None, sun_samples: int = 7):
+    """The relative L2 error against `target` of `exported_image`: the design's error as
+    exported, facets included (the nominal figure of `verify_lens`); None where
+    `exported_image` does not apply."""
+    target = _image(target, "target", scene.receiver.shape)
+    image = exported_image(scene, samples=samples, sun_samples=sun_samples)
+    return None if image is None else relative_l2(image, target, mask)
 
 
 def _verify_by_facets(scene, target, mask, screen_shift, sun_samples, samples) -> Verification:
