@@ -55,15 +55,17 @@ def test_the_predicted_caustic_in_bands_is_the_one_trace():
 def test_banded_triangles_have_the_one_band_gradient():
     """What the design's finish differentiates: the gradient of an image misfit with
     respect to the heights, in bands (a checkpointed scan) and at once."""
-    setup = lens_setup.prepare(PROBLEM, blob(), jc.TransportStart(grid=12), None)
+    setup = lens_setup.prepare(PROBLEM, blob(8), jc.TransportStart(grid=8), None)
     h0 = jnp.asarray(bump(setup.shapes[-1]))
-    weights = jnp.asarray(np.random.default_rng(0).normal(size=(16, 16)))
-    n = 33
-    limit = 2 * 6 * band_bytes(n, 1, jnp.float64)
+    weights = jnp.asarray(np.random.default_rng(0).normal(size=(8, 8)))
+    n = 17
+    limit = 2 * 4 * band_bytes(n, 1, jnp.float64)  # four photon rows a band
 
     def misfit(h, memory_limit):
         scene = setup.element_scene(h)
-        image = caustic_triangles(scene, photons=n, window=8, memory_limit=memory_limit).image
+        result = caustic_triangles(scene, photons=n, window=4, memory_limit=memory_limit)
+        assert result.stats["bands"] == (1 if memory_limit is None else 6)
+        image = result.image
         return jnp.sum(weights * image / jnp.mean(image))
 
     whole = jax.grad(misfit)(h0, None)
