@@ -68,8 +68,9 @@ def test_banded_triangles_have_the_one_band_gradient():
         image = result.image
         return jnp.sum(weights * image / jnp.mean(image))
 
-    whole = jax.grad(misfit)(h0, None)
-    banded = jax.grad(misfit)(h0, limit)
+    gradient = jax.jit(jax.grad(misfit), static_argnums=1)  # jitted: 6 s, eagerly 11 s
+    whole = gradient(h0, None)
+    banded = gradient(h0, limit)
     assert float(jnp.max(jnp.abs(whole))) > 0
     np.testing.assert_allclose(banded, whole, rtol=1e-8, atol=1e-8 * float(jnp.abs(whole).max()))
 
