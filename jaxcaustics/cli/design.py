@@ -210,7 +210,7 @@ def add_design(subparsers) -> None:
         default=("stl",),
         metavar="LIST",
         help="mesh files of the solid, comma-separated among stl, obj, ply (default: stl, "
-        "binary; a 1024^2-sample solid is 420 MB as STL, 350 MB more as OBJ)",
+        "binary; the solid of a design with 1024^2 heights is 420 MB as STL)",
     )
     design.add_argument(
         "--memory-limit",

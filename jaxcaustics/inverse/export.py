@@ -222,8 +222,9 @@ def export_lens(
     - `tool_radius_mm`, `min_thickness_mm`, `max_slope_deg`, `margin_mm`: for the report
       (see `manufacturability`).
     - `formats`: mesh formats to write, among ``"stl"`` (binary; the default),
-      ``"obj"``, ``"ply"``. A 1024^2-sample design's solid holds 8.4M faces: 420 MB as
-      binary STL, 350 MB more as OBJ (measured: 105 MB and 87 MB at 1025^2).
+      ``"obj"``, ``"ply"``. A design with 1024^2 heights is sampled on 2049^2 points:
+      8.4M faces, 420 MB as binary STL (measured; at 1025^2 points: 105 MB as STL, 87 MB
+      as OBJ).
 
     **Returns:** a dict of the written paths with keys the mesh formats and
     ``"height_png"``, ``"height_json"``, ``"height_exr"``, ``"report_json"``,
