@@ -41,8 +41,9 @@ from .methods.choose import (
 )
 from .methods.refine import ErrorEstimate, estimate_error, refine_to_tolerance
 from .methods.registry import METHODS, method_class
+from .methods.spot_lights.bundles import refine_axis
 from .methods.spot_lights.exit_rays import ExitRays, trace_exit_rays
-from .methods.spot_lights.fit import FitInfo, fit_spot_lights, refine_axis
+from .methods.spot_lights.fit import FitInfo, fit_spot_lights
 from .methods.spot_lights.lights import (
     SpotLightRays,
     SpotLights,

@@ -15,6 +15,7 @@ import trimesh
 import jaxcaustics as jc
 from jaxcaustics.methods.caustic_map import gbuffer as _gbuffer
 from jaxcaustics.methods.caustic_map.light_view import LightView
+from jaxcaustics.methods.spot_lights import bundles as _spot_light_bundles
 from jaxcaustics.methods.spot_lights import fit as _spot_light_fit
 from jaxcaustics.methods.spot_lights import lights as _spot_lights
 from jaxcaustics.methods.spot_lights import table as _spot_light_table
@@ -70,7 +71,7 @@ def no_work(monkeypatch):
         (_spot_lights, "_evaluate"),
         (_spot_lights, "receiver_points"),
         (_spot_light_fit, "_fit_jit"),
-        (_spot_light_fit, "_refine_axis"),
+        (_spot_light_bundles, "_refine_axis"),
         (_spot_light_table, "map_sharded"),
         (_spot_light_table, "_interpolate"),
         (_gbuffer, "_raster_faces"),
