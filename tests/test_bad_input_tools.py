@@ -17,6 +17,7 @@ from jaxcaustics.methods.caustic_map import gbuffer as _gbuffer
 from jaxcaustics.methods.caustic_map.light_view import LightView
 from jaxcaustics.methods.spot_lights import bundles as _spot_light_bundles
 from jaxcaustics.methods.spot_lights import fit as _spot_light_fit
+from jaxcaustics.methods.spot_lights import light_table as _spot_light_light_table
 from jaxcaustics.methods.spot_lights import lights as _spot_lights
 from jaxcaustics.methods.spot_lights import table as _spot_light_table
 from jaxcaustics.scene.ellipsoid import Ellipsoid, EllipsoidScene
@@ -73,7 +74,7 @@ def no_work(monkeypatch):
         (_spot_light_fit, "_fit_jit"),
         (_spot_light_bundles, "_refine_axis"),
         (_spot_light_table, "map_sharded"),
-        (_spot_light_table, "_interpolate"),
+        (_spot_light_light_table, "_interpolate"),
         (_gbuffer, "_raster_faces"),
         (_gbuffer, "_sample"),
     ]:

@@ -16,12 +16,11 @@ import numpy as np
 import pytest
 from _subprocess import run_python
 
+from jaxcaustics.methods.spot_lights.frames import _canonicalise, _resample_images
+from jaxcaustics.methods.spot_lights.light_table import _locate
 from jaxcaustics.methods.spot_lights.lights import SpotLights
 from jaxcaustics.methods.spot_lights.table import (
     SpotLightTable,
-    _canonicalise,
-    _locate,
-    _resample_images,
     build_spot_light_table,
     direction_edges,
     greedy_match,
@@ -125,7 +124,7 @@ def synthetic_tracks(directions, faces, fields, kinds):
 
 
 def stacked(fields):
-    from jaxcaustics.methods.spot_lights.table import _stacked_spot_lights
+    from jaxcaustics.methods.spot_lights.light_table import _stacked_spot_lights
 
     return _stacked_spot_lights(fields)
 
