@@ -54,7 +54,7 @@ from jaxcaustics.methods.caustic_map import gbuffer as _gbuffer
 from jaxcaustics.methods.spot_lights import exit_rays as _ellipsoid
 from jaxcaustics.methods.spot_lights import lights as _spot_lights
 from jaxcaustics.methods.triangles import distance_map as _distance_map
-from jaxcaustics.methods.triangles import method as triangles_module
+from jaxcaustics.methods.triangles import visibility as triangles_visibility
 from jaxcaustics.methods.triangles.method import CubeMapOptions
 from jaxcaustics.trace import optics as _optics
 from jaxcaustics.trace import photons as _photons
@@ -566,9 +566,9 @@ def _distance_map_occlusion_work(monkeypatch, scene) -> dict:
         seen["shadow_test"] = kwargs.get("shadow_test", True)
         return project(*args, **kwargs)
 
-    # (patched where the pipeline looks them up: `methods/triangles/method.py` imports them)
-    monkeypatch.setattr(triangles_module, "build_distance_map", build_spy)
-    monkeypatch.setattr(triangles_module, "project_light_cube_map", project_spy)
+    # (patched where the pipeline looks them up: `methods/triangles/visibility.py` imports them)
+    monkeypatch.setattr(triangles_visibility, "build_distance_map", build_spy)
+    monkeypatch.setattr(triangles_visibility, "project_light_cube_map", project_spy)
     _trace(distance_map, scene)
     return seen
 

@@ -296,7 +296,7 @@ def test_tiers_are_the_cheapest_that_hold_every_triangle(rng):
     in every band and channel."""
     import itertools
 
-    from jaxcaustics.methods.triangles.method import MAX_TIERS, _power_of_two, _size_tiers
+    from jaxcaustics.methods.triangles.sizing import MAX_TIERS, _power_of_two, _size_tiers
 
     window, triangles, penalty = 12, 5000, 300.0
     spans = np.arange(window + 3)

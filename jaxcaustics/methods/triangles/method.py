@@ -26,18 +26,15 @@ that use them (masks, never Python-side filtering).
 from __future__ import annotations
 
 import dataclasses
-import functools
 from collections.abc import Sequence
 from typing import ClassVar, Literal
 
 import equinox as eqx
 import jax
 import jax.numpy as jnp
-import numpy as np
-from jaxtyping import Array, Bool, Float
+from jaxtyping import Array
 
 from ..._checks import (
-    check_bool,
     check_choice,
     check_fits,
     check_int,
@@ -46,39 +43,46 @@ from ..._checks import (
     check_photon_work,
 )
 from ...devices import device_mesh
-from ...reconstruct.raster import (
-    pixel_coordinates,
-    rasterize_exact,
-    rasterize_gouraud,
-    signed_area,
-    splat_gaussian,
-    sum_in_tiers,
-    sum_over_batches,
-)
+from ...reconstruct.raster import pixel_coordinates, splat_gaussian
 from ...scene.checks import checks_scene_values
 from ...scene.mesh import MeshScene
 from ...scene.mirror import MirrorScene
 from ...scene.scene import LensScene, PlaneReceiver
 from ...scene.surface import MAX_HIT_ITERATIONS
 from ...trace.intersect import search_bytes
-from ...trace.photons import Photons, element_photons, mesh_photons
+from ...trace.photons import Photons
 from ..base import Method, channels_last
-from .distance_map import (
-    build_distance_map,
-    light_cube_map,
-    project_light_cube_map,
-    trace_distance_map,
+from .bands import _band_census, _BandConfig, _banded_image
+from .rasterise import MAX_AUTO_WINDOW as MAX_AUTO_WINDOW
+from .rasterise import _triangles_image
+from .rasterise import grid_triangles as grid_triangles
+from .sizing import MAX_TIERS as MAX_TIERS
+from .sizing import (
+    _extent_histogram_jit,
+    _plain_tier,
+    _size_tiers,
+    _tier_penalty,
+    _window_from_histogram,
+    band_bytes,
+    triangle_bytes,
 )
+from .tracing import (
+    _ELEMENTS,
+    _check_grid,
+    _check_scene,
+    _is_auto,
+    _refuse_unused,
+    _sizes,
+    _trace_photons,
+    trace_photons,
+)
+from .visibility import CubeMapOptions, _distance_map_caustics
 
 RECONSTRUCTIONS = ("exact", "gouraud")
 VISIBILITIES = ("exact", "distance_map")
-MAX_AUTO_WINDOW = 32
-MAX_TIERS = 3  # windows of an "auto" render (`_size_tiers`)
 # numbers per receiver pixel and channel besides the photons: the image being summed,
 # one batch's image, its scatter and the result
 _IMAGE_FLOATS = 4
-# the height-field caustic elements (one photon grid over the aperture)
-_ELEMENTS = (LensScene, MirrorScene)
 
 
 class TrianglesResult(eqx.Module):
@@ -104,243 +108,6 @@ class TrianglesResult(eqx.Module):
     missed_flux_fraction: Array
     photons: Photons | None
     stats: dict = eqx.field(default_factory=dict)
-
-
-def grid_triangles(values: Array) -> Array:
-    """The two triangles of every grid cell: ``(..., rows, cols, *rest)`` vertex data to
-    ``(..., 2 (rows - 1) (cols - 1), 3, *rest)``.
-
-    Cell ``(i, j)`` with corners ``a = (i, j)``, ``b = (i, j + 1)``, ``c = (i + 1, j)``,
-    ``d = (i + 1, j + 1)`` gives the triangles ``(a, b, d)`` and ``(a, d, c)``.
-    """
-    a = values[:, :-1, :-1]
-    b = values[:, :-1, 1:]
-    c = values[:, 1:, :-1]
-    d = values[:, 1:, 1:]
-    first = jnp.stack([a, b, d], axis=3)
-    second = jnp.stack([a, d, c], axis=3)
-    tri = jnp.stack([first, second], axis=3)  # (C, rows-1, cols-1, 2, 3, ...)
-    return tri.reshape(tri.shape[0], -1, *tri.shape[4:])
-
-
-def _scatter_to_vertices(per_triangle: Array, grid: tuple[int, int]) -> Array:
-    """Sum ``(C, T, 3)`` per-triangle-corner values onto the grid vertices."""
-    rows, cols = grid
-    index = jnp.arange(rows * cols).reshape(1, rows, cols)
-    corner = grid_triangles(index)[0]  # (T, 3) vertex indices
-    out = jnp.zeros((per_triangle.shape[0], rows * cols), per_triangle.dtype)
-    out = out.at[:, corner.reshape(-1)].add(per_triangle.reshape(per_triangle.shape[0], -1))
-    return out.reshape(-1, rows, cols)
-
-
-class _Triangles(eqx.Module):
-    pixels: Float[Array, "C T 3 2"]
-    flux: Float[Array, "C T"]
-    valid: Bool[Array, "C T"]
-    limited: Float[Array, "C T"]  # flux the interface limit dropped, by its vertices
-
-
-def _screen_triangles(photons: Photons, extent, shape) -> _Triangles:
-    valid = grid_triangles(photons.valid).all(axis=-1)
-    density = grid_triangles(photons.density).mean(axis=-1)
-    flux = jnp.where(valid, 0.5 * photons.cell_area * density, 0.0)
-    pixels = pixel_coordinates(grid_triangles(photons.position[..., :2]), extent, shape)
-    if photons.limited is None:
-        limited = jnp.zeros_like(flux)
-    else:
-        limited = 0.5 * photons.cell_area * grid_triangles(photons.limited).mean(axis=-1)
-    return _Triangles(pixels, flux, valid, limited)
-
-
-def _vertex_irradiance(flux: Array, area: Array, valid: Array, grid, mean_area=None) -> Array:
-    """The paper's vertex irradiance ``dPhi / dA``: a third of each adjacent triangle's
-    flux over a third of its area (on the surface it landed on), per triangle corner
-    ``(C, T, 3)``; `flux`, `area` and `valid` are per triangle ``(C, T)``; `mean_area`
-    ``(C,)``: the valid area over the number of triangles of the whole grid (default:
-    of these triangles)."""
-    area = jnp.where(valid, area, 0.0)
-    flux = jnp.where(valid, flux, 0.0)
-    power = _scatter_to_vertices(jnp.broadcast_to(flux[..., None] / 3, area.shape + (3,)), grid)
-    spread = _scatter_to_vertices(jnp.broadcast_to(area[..., None] / 3, area.shape + (3,)), grid)
-    # a vertex whose triangles all collapsed (a perfect focus) is given a thousandth of
-    # its mean share of area: finite, and far brighter than anything resolvable
-    if mean_area is None:
-        mean_area = jnp.sum(area, axis=-1) / max(1, area.shape[-1])
-    floor = 1e-3 * mean_area[:, None]
-    irradiance = power / jnp.maximum(spread, floor[..., None])
-    rows, cols = grid
-    index = grid_triangles(jnp.arange(rows * cols).reshape(1, rows, cols))[0]
-    return irradiance.reshape(irradiance.shape[0], -1)[:, index]
-
-
-def _pixel_area(extent, shape):
-    return (extent[1] - extent[0]) / shape[1] * (extent[3] - extent[2]) / shape[0]
-
-
-def _band_image(
-    photons,
-    extent,
-    shape,
-    reconstruction: str,
-    tiers,
-    supersample: int,
-    draw=None,
-    mean_area=None,
-):
-    """Rasterise the caustic triangles of `photons` (a whole grid or a band of its rows)
-    by `tiers` (`sum_in_tiers`: ``((window, capacity, batch), ...)``, the triangles
-    parted by `_spans`). `draw` ``(T,)``: which of them to draw (a band's own rows: its
-    halo rows only complete the vertex irradiance); `mean_area`: see
-    `_vertex_irradiance`.
-    **Returns:** the summed rasteriser output ``(C, rows, cols)`` (flux per pixel, or the
-    Gouraud image), the drawn valid flux ``(C,)`` and the flux the interface limit
-    dropped from the drawn triangles ``(C,)``."""
-    tri = _screen_triangles(photons, extent, shape)
-    drawn = tri.valid if draw is None else tri.valid & draw[None]
-    if reconstruction == "exact":
-
-        def raster(w, v, f, m):
-            return rasterize_exact(v, f, m, shape, w)
-
-        values = tri.flux
-    else:
-
-        def raster(w, v, e, m):
-            return rasterize_gouraud(v, e, m, shape, w, supersample)
-
-        area = jnp.abs(signed_area(tri.pixels)) * _pixel_area(extent, shape)
-        values = _vertex_irradiance(tri.flux, area, tri.valid, photons.grid_shape, mean_area)
-    size = jnp.where(drawn, _spans(tri), -1.0)
-    images = jnp.stack(
-        [
-            sum_in_tiers(raster, tiers, size[c], tri.pixels[c], values[c], drawn[c])
-            for c in range(tri.valid.shape[0])
-        ]
-    )
-    mine = tri.limited if draw is None else jnp.where(draw[None], tri.limited, 0.0)
-    return images, jnp.where(drawn, tri.flux, 0.0).sum(axis=-1), mine.sum(axis=-1)
-
-
-def _finish(images, total, limited, extent, shape, reconstruction):
-    """Irradiance images, the missed-flux fraction and the fraction of the light through
-    the object the interface limit dropped (``limited / (total + limited)``) from
-    `_band_image`'s sums."""
-    pixel_area = _pixel_area(extent, shape)
-    if reconstruction == "exact":
-        # overlap areas are sums of signed edge terms: clear their rounding below zero
-        images = jnp.maximum(images / pixel_area, 0.0)
-    landed = images.sum(axis=(1, 2)) * pixel_area
-    missed = jnp.where(total > 0, 1.0 - landed / jnp.where(total > 0, total, 1.0), 0.0)
-    through = total + limited
-    dropped = jnp.where(through > 0, limited / jnp.where(through > 0, through, 1.0), 0.0)
-    return images, jnp.clip(missed, 0.0, 1.0), dropped
-
-
-@eqx.filter_jit
-def _triangles_image(photons, extent, shape, reconstruction: str, tiers, supersample: int):
-    images, total, limited = _band_image(photons, extent, shape, reconstruction, tiers, supersample)
-    return _finish(images, total, limited, extent, shape, reconstruction)
-
-
-def _spans(tri: _Triangles) -> Array:
-    """The side of the pixel block that holds each valid triangle whole, ``(C, T)``,
-    clipped to ``MAX_AUTO_WINDOW + 1`` (0 for invalid ones)."""
-    pix = jnp.where(tri.valid[..., None, None], tri.pixels, 0.0)
-    span = jnp.max(jnp.ceil(pix.max(axis=-2)) - jnp.floor(pix.min(axis=-2)), axis=-1)
-    return jnp.clip(span, 0, MAX_AUTO_WINDOW + 1)
-
-
-def _extent_histogram(photons: Photons, extent, shape) -> tuple[Array, Array]:
-    """By `_spans` (bins ``0 .. MAX_AUTO_WINDOW + 1``): the valid flux of the caustic
-    triangles of `photons`, channels pooled ``(bins,)``, and the number of valid
-    triangles per channel ``(C, bins)``."""
-    tri = _screen_triangles(photons, extent, shape)
-    keep = tri.valid & (tri.flux > 0)
-    bins = _spans(tri).astype(jnp.int32)
-    flux = jnp.where(keep, tri.flux, 0.0)
-    by_flux = jnp.zeros(MAX_AUTO_WINDOW + 2, flux.dtype).at[bins.reshape(-1)].add(flux.reshape(-1))
-    channel = jnp.broadcast_to(jnp.arange(bins.shape[0])[:, None], bins.shape)
-    by_count = jnp.zeros((bins.shape[0], MAX_AUTO_WINDOW + 2), jnp.int32)
-    by_count = by_count.at[channel, bins].add(tri.valid.astype(jnp.int32))
-    return by_flux, by_count
-
-
-_extent_histogram_jit = eqx.filter_jit(_extent_histogram)
-
-
-def _window_from_histogram(histogram, flux_fraction: float) -> int:
-    """`triangle_window` from `_extent_histogram`'s flux (summed over bands)."""
-    histogram = np.asarray(histogram, np.float64)
-    total = histogram.sum()
-    if not total > 0:
-        return 1
-    cumulative = np.cumsum(histogram) / total
-    needed = min(int(np.searchsorted(cumulative, flux_fraction)), len(histogram) - 1)
-    return int(min(MAX_AUTO_WINDOW, max(1, needed)))
-
-
-def _power_of_two(n: int) -> int:
-    """The least power of two >= `n` (>= 1): tier capacities (and so compilations) from a
-    few sizes."""
-    return 1 << max(0, int(n) - 1).bit_length()
-
-
-def _tier_penalty(shape, dtype=jnp.float64) -> int:
-    """The fixed work of a tier of `sum_in_tiers` in `triangle_bytes`' units: its image
-    (made, added to, summed: about four numbers a pixel) and a little more."""
-    return (4 * shape[0] * shape[1] + 4096) * jnp.dtype(dtype).itemsize
-
-
-def _plain_tier(window: int, batch: int):
-    """Every triangle in its place, with one `window` (`sum_in_tiers`)."""
-    return ((window, None, batch),)
-
-
-def _size_tiers(counts, window: int, triangles: int, cost, batch, penalty):
-    """The cheapest tiers for `sum_in_tiers`: up to `MAX_TIERS` windows, the widest
-    `window`, the others powers of two (few distinct tiers: each new one compiles).
-
-    `counts` ``(..., bins)``: `_extent_histogram`'s numbers of triangles by span, for
-    each band and channel; a tier's capacity is the most it holds in any of them,
-    rounded up to a power of two (at most `triangles`, the triangles of a band);
-    `cost(w)`: the work of one triangle in a ``w x w`` window (`triangle_bytes`);
-    `batch(w, n)`: the batch of a tier of `n` triangles; `penalty`: the fixed work of a
-    tier (its image), in `cost`'s units. **Returns:** ``((window, capacity, batch),
-    ...)``, or one tier of capacity ``None`` (every triangle, in place).
-
-    A tier of window ``w`` followed by one of window ``v < w`` holds the triangles wider
-    than ``v`` and at most ``w`` wide, so the cost of a chain of windows is a sum over
-    its links, and the cheapest chain is found link by link (dynamic programming).
-    """
-    counts = np.asarray(counts).reshape(-1, np.shape(counts)[-1])
-    at_least = np.cumsum(counts[:, ::-1], axis=1)[:, ::-1]  # [:, s]: spans >= s
-    at_least = np.concatenate([at_least, np.zeros_like(at_least[:, :1])], axis=1)
-
-    def wider(v):  # per band and channel: triangles wider than v (v = 0: all of them)
-        return at_least[:, 0] if v == 0 else at_least[:, v + 1]
-
-    def capacity(w, v):  # the tier of window w followed by one of window v
-        held = wider(v) - (0 if w == window else wider(w))
-        return min(triangles, _power_of_two(max(1, int(held.max()))))
-
-    narrower = [1 << k for k in range(6) if 1 << k < window]
-
-    @functools.cache
-    def cheapest(w: int, tiers: int) -> tuple[float, tuple]:
-        """The cheapest tiers from window `w` on."""
-        best = (np.inf, ())
-        for v in [0] + ([v for v in narrower if v < w] if tiers > 1 else []):
-            rest, chain = cheapest(v, tiers - 1) if v else (0.0, ())
-            n = capacity(w, v)
-            total = n * cost(w) + penalty + rest
-            if total < best[0]:
-                best = (total, ((w, n), *chain))
-        return best
-
-    best = cheapest(window, MAX_TIERS)[1]
-    if len(best) == 1 and best[0][1] == triangles:  # one tier of them all: in place
-        return _plain_tier(window, batch(window, triangles))
-    return tuple((w, n, batch(w, n)) for w, n in best)
 
 
 def _check_photons_receiver(photons, receiver) -> None:
@@ -450,298 +217,6 @@ def splat_photons(photons: Photons, receiver: PlaneReceiver, sigma, window: int 
         for c in range(points.shape[0])
     ]
     return jnp.stack(channels) / pixel_area
-
-
-@eqx.filter_jit
-def _trace_photons(scene, grid: tuple[int, int], hit_iterations: int, batch_size: int):
-    if isinstance(scene, _ELEMENTS):
-        return element_photons(scene, grid, hit_iterations)
-    return mesh_photons(scene, grid, batch_size)
-
-
-def trace_photons(
-    scene,
-    grid: tuple[int, int],
-    hit_iterations: int = 3,
-    batch_size: int = 4096,
-    *,
-    memory_limit: int | None = None,
-):
-    """The photon hit location image of a `LensScene` or `MeshScene` (jit-compiled).
-
-    `grid`: ``n`` or ``(rows, cols)`` photons (as `CausticTriangles`' `photons`);
-    `hit_iterations`: lens scenes only (Newton steps, ``[0, 100]``); `batch_size`: mesh
-    scenes only (rays per batch of the triangle search). The whole grid is traced at
-    once: its photons (`band_bytes`) must fit in `memory_limit` (default 1 GiB).
-    """
-    _check_scene(scene)
-    grid = _check_grid(grid, "grid")
-    hit_iterations = check_int(hit_iterations, "hit_iterations", 0, MAX_HIT_ITERATIONS)
-    batch_size = check_int(batch_size, "batch_size", 1)
-    memory_limit = check_memory_limit(memory_limit)
-    if isinstance(scene, _ELEMENTS):
-        _refuse_unused("batch_size", batch_size, 4096, "mesh scenes")
-    else:
-        _refuse_unused("hit_iterations", hit_iterations, 3, "lens scenes")
-    channels, dtype, faces = _sizes(scene)
-    check_photon_work(grid[0] * grid[1], 1, "grid")
-    check_fits(
-        band_bytes(grid[0] * grid[1], channels, dtype, faces, batch_size if faces else 0),
-        memory_limit,
-        f"the {grid[0]} x {grid[1]} photon grid, traced at once",
-        "pass a smaller `grid`" + (" or `batch_size`" if faces else ""),
-    )
-    return _trace_photons(scene, grid, hit_iterations, batch_size)
-
-
-def _check_scene(scene) -> None:
-    if not isinstance(scene, (*_ELEMENTS, MeshScene)):
-        raise ValueError(
-            f"`scene` must be a LensScene, a MirrorScene or a MeshScene, got {type(scene).__name__}"
-        )
-
-
-def _sizes(scene) -> tuple[int, np.dtype, int]:
-    """Channels, dtype and (mesh scenes) generator faces of a lens or mesh scene."""
-    if isinstance(scene, _ELEMENTS):
-        return len(getattr(scene, "iors", (1,))), np.dtype(scene.surface.heights.dtype), 0
-    faces = int(scene.generator.faces.shape[0])
-    return len(scene.iors), np.dtype(scene.generator.vertices.dtype), faces
-
-
-def _is_auto(value) -> bool:
-    return isinstance(value, str) and value == "auto"
-
-
-def _refuse_unused(name: str, value, default, applies: str) -> None:
-    """A knob set (to anything but its default) where it does not apply: a `ValueError`
-    naming it, never silently ignored."""
-    if value is not default and value != default:
-        raise ValueError(f"`{name}` applies to {applies} only; got {value!r} (leave it out)")
-
-
-def _check_grid(photons, name: str = "photons") -> tuple[int, int]:
-    """``n`` or ``(rows, cols)``, ints >= 2 (no bools or floats), as ``(rows, cols)``."""
-    if isinstance(photons, np.ndarray) and photons.ndim == 1:
-        photons = tuple(photons)
-    if not isinstance(photons, (tuple, list)):
-        if isinstance(photons, (int, np.integer)) and not isinstance(photons, (bool, np.bool_)):
-            photons = (photons, photons)
-        else:
-            raise ValueError(f"`{name}` must be an int or (rows, cols), got {photons!r}")
-    if len(photons) != 2:
-        raise ValueError(f"`{name}` must be an int or (rows, cols), got {photons!r}")
-    return check_int(photons[0], name, 2), check_int(photons[1], name, 2)
-
-
-class CubeMapOptions(eqx.Module):
-    """Knobs of the paper's visibility pipeline (``visibility="distance_map"``).
-
-    - `resolution`: texels per cube-face edge of the distance and light cube maps.
-    - `layers`: surfaces kept per texel of the layered distance map.
-    - `linear_steps`, `secant_iterations`: the ray search in the distance map.
-    - `shadow_test`: use the light cube map's distances as a shadow map in the camera
-      pass (``False``: naive projection, which leaks light behind occluders).
-    - `tolerance`: relative distance tolerance of the shadow test.
-    - `window`: the rasteriser window on the cube faces, texels; ``None`` takes the
-      smallest that holds every triangle (needs concrete values, outside `jit`).
-    """
-
-    resolution: int = eqx.field(static=True, default=128)
-    layers: int = eqx.field(static=True, default=2)
-    linear_steps: int = eqx.field(static=True, default=32)
-    secant_iterations: int = eqx.field(static=True, default=4)
-    shadow_test: bool = eqx.field(static=True, default=True)
-    tolerance: float = eqx.field(static=True, default=0.02)
-    window: int | None = eqx.field(static=True, default=None)
-
-    def __check_init__(self):
-        for name, low in (
-            ("resolution", 2),
-            ("layers", 1),
-            ("linear_steps", 1),
-            ("secant_iterations", 0),
-        ):
-            check_int(getattr(self, name), name, low)
-        check_bool(self.shadow_test, "shadow_test")
-        check_number(self.tolerance, "tolerance", low=0.0)
-        if self.window is not None:
-            check_int(self.window, "window", 1)
-
-
-def _cube_centre(scene: MeshScene) -> Array:
-    verts = jax.lax.stop_gradient(scene.generator.vertices)
-    return 0.5 * (verts.min(axis=0) + verts.max(axis=0))
-
-
-@eqx.filter_jit
-def _distance_map_photons(scene: MeshScene, dmap, grid, batch_size, options: CubeMapOptions):
-
-    def terminal(origins, directions):
-        hit = trace_distance_map(
-            dmap,
-            origins,
-            directions,
-            linear_steps=options.linear_steps,
-            secant_iterations=options.secant_iterations,
-        )
-        return hit.point, hit.found
-
-    return mesh_photons(scene, grid, batch_size, terminal)
-
-
-@eqx.filter_jit
-def _cube_map_triangles(photons: Photons):
-    """Caustic triangles in space: corners ``(C, T, 3, 3)``, vertex irradiance on the
-    surface they landed on ``(C, T, 3)``, validity ``(C, T)``."""
-    corners = grid_triangles(photons.position)  # (C, T, 3, 3)
-    valid = grid_triangles(photons.valid).all(axis=-1)
-    flux = 0.5 * photons.cell_area * grid_triangles(photons.density).mean(axis=-1)
-    edge1 = corners[..., 1, :] - corners[..., 0, :]
-    edge2 = corners[..., 2, :] - corners[..., 0, :]
-    area = 0.5 * jnp.linalg.norm(jnp.cross(edge1, edge2), axis=-1)  # on the landing surface
-    irradiance = _vertex_irradiance(flux, area, valid, photons.grid_shape)
-    return corners, irradiance, valid
-
-
-def _cube_map_image(photons: Photons, centre, receiver: PlaneReceiver, options: CubeMapOptions):
-
-    corners, irradiance, valid = _cube_map_triangles(photons)
-    rows, cols = receiver.shape
-    x0, x1, y0, y1 = receiver.extent
-    xs = x0 + (jnp.arange(cols) + 0.5) * (x1 - x0) / cols
-    ys = y0 + (jnp.arange(rows) + 0.5) * (y1 - y0) / rows
-    gx, gy = jnp.meshgrid(xs, ys)
-    pixels = jnp.stack([gx, gy, jnp.zeros_like(gx)], axis=-1).reshape(-1, 3)
-    images = []
-    for c in range(corners.shape[0]):
-        lcm = light_cube_map(
-            centre, corners[c], irradiance[c], valid[c], options.resolution, options.window
-        )
-        lit = project_light_cube_map(
-            lcm, centre, pixels, shadow_test=options.shadow_test, tolerance=options.tolerance
-        )
-        images.append(lit.reshape(rows, cols))
-    return jnp.stack(images)
-
-
-def _distance_map_caustics(scene: MeshScene, grid, batch_size, options: CubeMapOptions):
-
-    if not scene.occluders:
-        # the screen alone: one layer holds it, and every caustic lands on it (no
-        # occlusion work is traced)
-        options = dataclasses.replace(options, layers=1, shadow_test=False)
-    centre = _cube_centre(scene)
-    dmap = build_distance_map(centre, scene.occluders, options.resolution, options.layers)
-    ph = _distance_map_photons(scene, dmap, grid, batch_size, options)
-    images = _cube_map_image(ph, centre, scene.receiver, options)
-    # flux bookkeeping on the screen is not defined here (caustics may land on occluders)
-    missed = jnp.full(images.shape[:1], jnp.nan, images.dtype)
-    return ph, images, missed
-
-
-# memory model of one band and one rasteriser batch, in numbers of the scene's dtype
-# (about 1.2 to 1.5 times XLA's compiled temporaries on CPU; tests/test_memory.py checks
-# the bound)
-_COUNT_ROWS = 256  # bands counted apart for the tiers (`_band_census`)
-_BAND_FLOATS = 64  # per photon and channel: photon, its two triangles, tracing temporaries
-
-
-def triangle_bytes(
-    window: int, reconstruction: str = "exact", supersample: int = 2, dtype=jnp.float64
-) -> int:
-    """Memory one triangle takes in a rasteriser batch, bytes: for `rasterize_exact`
-    three numbers per edge term ``3 x window x (window + 1)`` (its overlap areas and the
-    scattered block), for `rasterize_gouraud` two per sample ``(window S)^2``, plus 64
-    numbers (vertices, values, indices)."""
-    size = jnp.dtype(dtype).itemsize
-    w = int(window)
-    if reconstruction == "exact":
-        return size * (9 * w * (w + 1) + 64)
-    side = w * int(supersample)
-    return size * (2 * side * side + 64)
-
-
-def band_bytes(photons: int, channels: int, dtype=jnp.float64, faces: int = 0, ray_batch: int = 0):
-    """Memory of a band of `photons` photons (per channel: the photon, its two caustic
-    triangles and the tracing temporaries, `_BAND_FLOATS` numbers) and, for a mesh scene
-    of `faces` generator faces, of one batch of `ray_batch` rays in the triangle search
-    (`search_bytes`), bytes."""
-    size = jnp.dtype(dtype).itemsize
-    return size * photons * channels * _BAND_FLOATS + search_bytes(ray_batch, faces, dtype)
-
-
-class _BandConfig(eqx.Module):
-    """Static layout of a banded render: `rows` photon rows per band (`rows - 1`
-    triangle rows drawn), `halo` extra photon rows on each side (Gouraud: the vertex
-    irradiance of the band's edge rows needs their other triangles), `bands` bands."""
-
-    grid: tuple[int, int] = eqx.field(static=True)
-    rows: int = eqx.field(static=True)
-    halo: int = eqx.field(static=True)
-    bands: int = eqx.field(static=True)
-    hit_iterations: int = eqx.field(static=True)
-    ray_batch: int = eqx.field(static=True)
-
-    def photons(self, scene, k, halo: int):
-        """The photons of band `k` (photon rows ``k (rows - 1) - halo`` on, ``rows + 2
-        halo`` of them)."""
-        band = (k * (self.rows - 1) - halo, self.rows + 2 * halo)
-        if isinstance(scene, _ELEMENTS):
-            return element_photons(scene, self.grid, self.hit_iterations, band)
-        return mesh_photons(scene, self.grid, self.ray_batch, band=band)
-
-    def drawn(self, halo: int):
-        """Which of a band's triangles are its own (not the halo's): ``(T,)``."""
-        per_row = 2 * (self.grid[1] - 1)
-        row = jnp.arange((self.rows + 2 * halo - 1) * per_row) // per_row
-        return (row >= halo) & (row < halo + self.rows - 1)
-
-
-@eqx.filter_jit
-def _band_census(scene, cfg: _BandConfig, mesh):
-    """Over all bands: the extent histograms (`_extent_histogram`: the flux summed, the
-    counts by band ``(bands, C, bins)``, at most `_COUNT_ROWS` rows) and the valid screen
-    area of the triangles per channel ``(C,)``."""
-
-    def census(scene, k):
-        ph = cfg.photons(scene, k, 0)
-        extent, shape = scene.receiver.extent, scene.receiver.shape
-        tri = _screen_triangles(ph, extent, shape)
-        area = jnp.abs(signed_area(tri.pixels)) * _pixel_area(extent, shape)
-        area = jnp.where(tri.valid, area, 0.0).sum(axis=-1)
-        by_flux, by_count = _extent_histogram(ph, extent, shape)
-        # each band's counts in a row of their own (the tiers need the most of any band);
-        # past _COUNT_ROWS bands a row adds up several: more than any one band, never less
-        rows = min(cfg.bands, _COUNT_ROWS)
-        stacked = jnp.zeros((rows,) + by_count.shape, by_count.dtype)
-        return by_flux, stacked.at[k % rows].add(by_count), area
-
-    return sum_over_batches(census, scene, cfg.bands, mesh=mesh)
-
-
-@eqx.filter_jit
-def _banded_image(scene, cfg: _BandConfig, mean_area, reconstruction, tiers, supersample, mesh):
-    """The images and missed-flux fractions of a grid traced and drawn band by band
-    (`sum_over_batches`: a scan, or split across the `mesh`'s devices)."""
-    extent, shape = scene.receiver.extent, scene.receiver.shape
-
-    def band(operands, k):
-        scene, mean_area = operands
-        ph = cfg.photons(scene, k, cfg.halo)
-        return _band_image(
-            ph,
-            scene.receiver.extent,
-            shape,
-            reconstruction,
-            tiers,
-            supersample,
-            draw=cfg.drawn(cfg.halo),
-            mean_area=mean_area,
-        )
-
-    images, total, limited = sum_over_batches(band, (scene, mean_area), cfg.bands, mesh=mesh)
-    return _finish(images, total, limited, extent, shape, reconstruction)
 
 
 class CausticTriangles(Method):
