@@ -54,6 +54,7 @@ from jaxcaustics.methods.caustic_map import gbuffer as _gbuffer
 from jaxcaustics.methods.spot_lights import exit_rays as _ellipsoid
 from jaxcaustics.methods.spot_lights import lights as _spot_lights
 from jaxcaustics.methods.triangles import distance_map as _distance_map
+from jaxcaustics.methods.triangles import layered_map as _layered_map
 from jaxcaustics.methods.triangles import visibility as triangles_visibility
 from jaxcaustics.methods.triangles.method import CubeMapOptions
 from jaxcaustics.trace import optics as _optics
@@ -97,7 +98,7 @@ class Kernels:
         "fresnel": [twopass, _photons, _gbuffer, _ellipsoid],
         "nearest_hits": [_photons],
         "hit_on_triangle": [_photons],
-        "ray_triangle_distances": [_distance_map],
+        "ray_triangle_distances": [_layered_map],
         "segment_blocked": [_spot_lights],
     }
     NAMES = {
