@@ -22,6 +22,7 @@ import numpy as np
 
 from .._checks import check_bool, check_int, check_number, check_real_array
 from ..scene.surface import bilinear
+from .legendre import cell_centres, legendre
 from .numerics import neumann_poisson
 
 _ARMIJO = (0.95, 0.25, 0.75)  # step scale factor, lower and upper Armijo-Goldstein bounds
@@ -58,31 +59,6 @@ class TransportMap:
     residual: np.ndarray
     iterations: int
     converged: bool
-
-
-def _axis(n: int, h, ghost: int, dtype):
-    return (jnp.arange(-ghost, n + ghost, dtype=dtype) + 0.5) * h
-
-
-def _legendre_1d(f: jax.Array, x: jax.Array, s: jax.Array, batch: int) -> jax.Array:
-    """``max_j (s_i x_j - f[..., j])`` along the last axis of `f` (rows batched)."""
-    sx = s[:, None] * x[None, :]  # (len(s), len(x))
-    return jax.lax.map(lambda row: jnp.max(sx - row[None, :], axis=1), f, batch_size=batch)
-
-
-def legendre(f: jax.Array, h, ghost: int = 0, hy=None) -> jax.Array:
-    """Discrete Legendre transform ``f*(s) = max_x (s . x - f(x))`` of `f` given at the
-    cell centres of its ``(rows, cols)`` grid (cells `h` wide, `hy` high: `h` if None),
-    evaluated at the centres of the same grid grown by `ghost` cells on every side:
-    ``(rows + 2 ghost, cols + 2 ghost)``."""
-    hy = h if hy is None else hy
-    rows, cols = f.shape
-    batch = max(1, min(rows, 2**23 // max(cols * (cols + 2 * ghost), 1)))
-    g = _legendre_1d(f, _axis(cols, h, 0, f.dtype), _axis(cols, h, ghost, f.dtype), batch)
-    # f*(s) = max_r (s_row x_r + g(r, s_col)) = max_r (s_row x_r - (-g))
-    batch = max(1, min(g.shape[1], 2**23 // max(rows * (rows + 2 * ghost), 1)))
-    out = _legendre_1d(-g.T, _axis(rows, hy, 0, f.dtype), _axis(rows, hy, ghost, f.dtype), batch)
-    return out.T
 
 
 def pushforward(potential: jax.Array, density: jax.Array, h, samples: int = 3, hy=None):
@@ -127,8 +103,8 @@ def _back_and_forth(mu, nu, iterations, buffer: int, tol, sigma0, stall, stretch
     dtype = mu.dtype
     hy = jnp.asarray(1.0 / max(rows, cols), dtype)
     h = hy * stretch.astype(dtype)
-    xs = _axis(cols, h, 0, dtype)
-    ys = _axis(rows, hy, 0, dtype)
+    xs = cell_centres(cols, h, 0, dtype)
+    ys = cell_centres(rows, hy, 0, dtype)
     half_sq = 0.5 * (xs[None, :] ** 2 + ys[:, None] ** 2)
     mass = jnp.sum(nu)
 

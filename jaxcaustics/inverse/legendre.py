@@ -1,0 +1,130 @@
+"""The discrete Legendre transform ``f*(s) = max_x (s . x - f(x))`` on a grid, the
+back-and-forth transport's conjugation (`transport.transport_map`).
+
+In 2-D it is separable: a 1-D transform along each row, then along each column of the
+result. In 1-D, `_legendre_lines` first takes the maximum at every `_BLOCK`-th slope (the
+anchors) over the whole line. ``f*`` is convex and its slope at ``s`` is the maximiser
+``x*(s)``, which never decreases as ``s`` grows; so the secants of ``f*`` between
+neighbouring anchors bound the maximisers of the slopes between two anchors: from the
+secant before the block's first anchor to the one after its last. Each block's slopes
+are then searched within `_WINDOW` points of that lower bound: exact wherever the bounds
+lie closer than `_WINDOW` points (with 2 points to spare for rounding). The blocks whose
+bounds spread wider (a jump of the map across a dark region, a concave stretch of `f`)
+are searched over the whole line; a line of ``n`` points has at most ``3 n / _WINDOW``
+of them, and `_WIDE_PER_LINE` per line (pooled over a chunk of lines) are provided
+for; a chunk with more is transformed by brute force. The result is the brute force's
+(the same products, the same maxima; at most a rounding apart where two points nearly
+tie). Measured (float32, 2 cores, one 2-D transform): 0.06 s against 0.17 s by
+brute force at 1024^2, about 1 s against 6-9 s at 2048^2; alike at 256^2, where short
+lines leave the windows little to skip.
+
+Why not a library: scipy and scikit-image have no Legendre transform; the linear-time
+convex-hull algorithms (Lucet's) are sequential scans, which run in JAX's `lax.scan`
+at a fraction of the vectorised search's speed (a hull scan in a `lax.scan`, tried at
+2048^2, was 1.4x faster than brute force).
+"""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+
+_BLOCK = 16  # slopes per block between two anchors
+_WINDOW = 128  # points searched for a block's slopes, from its first anchor's maximiser
+_WIDE_PER_LINE = 4  # blocks per line, pooled over a chunk, searched over the whole line
+_CHUNK_ELEMENTS = 1 << 23  # the largest intermediate of a chunk of lines, elements
+
+
+def _brute_lines(f: jax.Array, x: jax.Array, s: jax.Array) -> jax.Array:
+    """``max_j (s_i x_j - f[l, j])`` for every line `l` of `f` ``(lines, n)`` and slope
+    ``s_i``: ``(lines, len(s))``, by searching every point."""
+    sx = s[:, None] * x[None, :]  # (m, n)
+    return jnp.max(sx[None, :, :] - f[:, None, :], axis=2)
+
+
+def _bracketed_lines(f: jax.Array, x: jax.Array, s: jax.Array):
+    """`_brute_lines` for a chunk of lines, by anchors and windows (module docstring).
+    Also returns whether the chunk had more wide blocks than provided for (then the
+    result is wrong and `_legendre_lines` takes the brute force's)."""
+    lines, n = f.shape
+    m = s.shape[0]
+    blocks = -(-m // _BLOCK)
+    s_pad = jnp.concatenate([s, jnp.full((blocks * _BLOCK - m,), s[-1], s.dtype)])
+    anchors = jnp.concatenate([s_pad[::_BLOCK], s[-1:]])  # (blocks + 1,)
+    top = jnp.max(anchors[None, :, None] * x[None, None, :] - f[:, None, :], axis=2)
+    # f* is convex, its slope the maximiser: between two anchors, the secant's slope
+    # bounds the maximisers of the anchors either side (in points, with a margin of 2
+    # for rounding)
+    ds = anchors[1:] - anchors[:-1]
+    secant = (top[:, 1:] - top[:, :-1]) / jnp.where(ds > 0, ds, 1.0)
+    point = (secant - x[0]) / (x[1] - x[0])
+    low = jnp.where(ds > 0, jnp.floor(point) - 2, 0.0)  # maximisers at anchors 1.. from here
+    high = jnp.where(ds > 0, jnp.ceil(point) + 2, n - 1.0)  # maximisers at anchors ..-2
+    lo = jnp.concatenate([jnp.zeros((lines, 1)), low[:, :-1]], axis=1)  # block k: x*(a_k)
+    hi = jnp.concatenate([high[:, 1:], jnp.full((lines, 1), n - 1.0)], axis=1)  # x*(a_k+1)
+    lo = jnp.clip(lo, 0, n - 1).astype(jnp.int32)
+    hi = jnp.clip(hi, 0, n - 1).astype(jnp.int32)
+
+    start = jnp.minimum(lo, n - _WINDOW)
+    index = start[:, :, None] + jnp.arange(_WINDOW)  # (lines, blocks, window)
+    fw = jnp.take_along_axis(f, index.reshape(lines, -1), axis=1).reshape(index.shape)
+    slopes = s_pad.reshape(blocks, _BLOCK)
+    near = jnp.max(slopes[None, :, :, None] * x[index][:, :, None, :] - fw[:, :, None, :], axis=3)
+
+    wide = (hi - lo) >= _WINDOW  # (lines, blocks): the bracket outgrows the window
+    budget = lines * _WIDE_PER_LINE
+    line, block = jnp.nonzero(wide, size=budget, fill_value=0)
+    full = slopes[block][:, :, None] * x[None, None, :] - f[line][:, None, :]
+    near = near.at[line, block].set(jnp.max(full, axis=2))  # the fill repeats (0, 0): exact
+    return near.reshape(lines, blocks * _BLOCK)[:, :m], jnp.sum(wide) > budget
+
+
+def _legendre_lines(f: jax.Array, x: jax.Array, s: jax.Array) -> jax.Array:
+    """``max_j (s_i x_j - f[l, j])`` along the last axis of `f` ``(lines, n)`` at the
+    increasing slopes `s` ``(m,)``, for points `x` ``(n,)`` increasing: ``(lines, m)``.
+    Chunks of lines go through `_bracketed_lines`, or by brute force where a line is
+    too short for the windows or a chunk has more wide blocks than provided for."""
+    lines, n = f.shape
+    m = s.shape[0]
+    if n < 4 * _WINDOW or m < 4 * _BLOCK:
+        chunk = max(1, min(lines, _CHUNK_ELEMENTS // max(n * m, 1)))
+        return _map_chunks(lambda c: _brute_lines(c, x, s), f, chunk, m)
+    blocks = -(-m // _BLOCK)
+    per_line = max((blocks + 1) * n, m * _WINDOW, _WIDE_PER_LINE * _BLOCK * n)
+    chunk = max(1, min(lines, _CHUNK_ELEMENTS // per_line))
+
+    def one(c):
+        near, overflow = _bracketed_lines(c, x, s)
+        return jax.lax.cond(overflow, lambda: _brute_lines(c, x, s), lambda: near)
+
+    return _map_chunks(one, f, chunk, m)
+
+
+def _map_chunks(fn, f: jax.Array, chunk: int, m: int) -> jax.Array:
+    """`fn` over consecutive chunks of `chunk` lines of `f` (padded with zero lines to a
+    whole number of chunks), concatenated: ``(lines, m)``."""
+    lines, n = f.shape
+    count = -(-lines // chunk)
+    padded = jnp.concatenate([f, jnp.zeros((count * chunk - lines, n), f.dtype)])
+    out = jax.lax.map(fn, padded.reshape(count, chunk, n))
+    return out.reshape(count * chunk, m)[:lines]
+
+
+def cell_centres(n: int, h, ghost: int, dtype):
+    """The centres of `n` cells `h` wide from 0, and of `ghost` more at each end."""
+    return (jnp.arange(-ghost, n + ghost, dtype=dtype) + 0.5) * h
+
+
+def legendre(f: jax.Array, h, ghost: int = 0, hy=None) -> jax.Array:
+    """Discrete Legendre transform ``f*(s) = max_x (s . x - f(x))`` of `f` given at the
+    cell centres of its ``(rows, cols)`` grid (cells `h` wide, `hy` high: `h` if None),
+    evaluated at the centres of the same grid grown by `ghost` cells on every side:
+    ``(rows + 2 ghost, cols + 2 ghost)``."""
+    hy = h if hy is None else hy
+    rows, cols = f.shape
+    dtype = f.dtype
+    g = _legendre_lines(f, cell_centres(cols, h, 0, dtype), cell_centres(cols, h, ghost, dtype))
+    # f*(s) = max_r (s_row x_r + g(r, s_col)) = max_r (s_row x_r - (-g))
+    x, s = cell_centres(rows, hy, 0, dtype), cell_centres(rows, hy, ghost, dtype)
+    out = _legendre_lines(-g.T, x, s)
+    return out.T

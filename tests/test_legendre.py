@@ -1,0 +1,77 @@
+"""`legendre`: the anchored, windowed search gives the brute-force maximum, on lines whose
+maximisers jump (wide blocks), on lines too rough for the wide blocks provided for
+(brute force per chunk), and in 2-D with ghost cells."""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from jaxcaustics.inverse import legendre as lg
+
+N = 4 * lg._WINDOW  # the shortest line the windows are used on
+
+
+def brute(f, x, s):
+    """``max_j (s_i x_j - f[l, j])`` in NumPy, float64."""
+    return np.max(s[None, :, None] * x[None, None, :] - f[:, None, :], axis=2)
+
+
+def kinked_lines(lines=8, n=N, seed=0):
+    """Convex lines, each linear over a stretch of 40% of its length (the maximiser jumps
+    over it: wider than the window), plus a little noise."""
+    x = (np.arange(n) + 0.5) / n
+    a, b = 0.3, 0.7
+    base = np.where(x < a, 0.5 * x**2, 0.5 * a**2 + a * (x - a))
+    base = np.where(x > b, 0.5 * a**2 + a * (b - a) + a * (x - b) + 0.5 * (x - b) ** 2, base)
+    rng = np.random.default_rng(seed)
+    return base[None, :] + 1e-6 * rng.standard_normal((lines, n)), x
+
+
+def test_wide_blocks_are_searched_whole(monkeypatch):
+    f, x = kinked_lines()
+    s = x.copy()
+    with monkeypatch.context() as m:  # no wide block provided for: these lines have some
+        m.setattr(lg, "_WIDE_PER_LINE", 0)
+        assert bool(lg._bracketed_lines(jnp.asarray(f), jnp.asarray(x), jnp.asarray(s))[1])
+    near, overflow = jax.jit(lg._bracketed_lines)(jnp.asarray(f), jnp.asarray(x), jnp.asarray(s))
+    assert not bool(overflow)  # one wide block or so per line: within the budget
+    np.testing.assert_allclose(np.asarray(near), brute(f, x, s), rtol=0, atol=1e-12)
+
+
+def test_lines_with_many_jumps_fall_back_to_brute_force():
+    n = 2 * N
+    x = (np.arange(n) + 0.5) / n
+    # convex, linear on 6 stretches of n / 6 points (wider than the window) with slopes
+    # 0.1, 0.26, ...: the maximiser jumps 5 times, each jump widening 2 or 3 blocks
+    slope = 0.1 + 0.16 * np.floor(6 * x)
+    f = np.cumsum(slope) / n + 1e-7 * np.random.default_rng(1).standard_normal((8, n))
+    _, overflow = lg._bracketed_lines(jnp.asarray(f), jnp.asarray(x), jnp.asarray(x))
+    assert bool(overflow)  # more wide blocks than provided for
+    out = lg._legendre_lines(jnp.asarray(f), jnp.asarray(x), jnp.asarray(x))
+    np.testing.assert_allclose(np.asarray(out), brute(f, x, x), rtol=0, atol=1e-12)
+
+
+@pytest.mark.parametrize("ghost", [3])
+def test_two_dimensional_transform_is_the_brute_forces(ghost):
+    n = N
+    h = 1.0 / n
+    xs = (np.arange(n) + 0.5) * h
+    X, Y = np.meshgrid(xs, xs)
+    rng = np.random.default_rng(2)
+    f = 0.5 * (X**2 + Y**2) + 0.02 * np.abs(X - 0.4) + 1e-3 * np.sin(9 * X) * np.cos(7 * Y)
+    f = f + 1e-5 * rng.standard_normal(f.shape)
+    s = (np.arange(-ghost, n + ghost) + 0.5) * h
+    rows = brute(f, xs, s)  # (n, n + 2 ghost): along each row
+    expected = brute(-rows.T, xs, s).T
+    out = np.asarray(jax.jit(lambda a: lg.legendre(a, h, ghost=ghost))(jnp.asarray(f)))
+    assert out.shape == (n + 2 * ghost, n + 2 * ghost)
+    np.testing.assert_allclose(out, expected, rtol=0, atol=1e-12)
+
+
+def test_float32_agrees_with_the_float32_brute_force():
+    f, x = kinked_lines(lines=4)
+    f32, x32 = jnp.asarray(f, jnp.float32), jnp.asarray(x, jnp.float32)
+    out = lg._legendre_lines(f32, x32, x32)
+    expected = lg._brute_lines(f32, x32, x32)
+    np.testing.assert_allclose(np.asarray(out), np.asarray(expected), rtol=0, atol=1e-7)
