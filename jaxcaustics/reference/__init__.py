@@ -21,6 +21,8 @@ Public functions
   or mirroring triangle mesh, occluders): image (and photon counts), photon by photon,
   emission grid.
 - `intersect_mesh`: nearest ray/triangle hits (exact Möller–Trumbore, float64).
+- `trace_lens_triangles`: the lens scene's caustic by triangles of traced vertices
+  spread over the pixels by area: no photon noise, second-order in the grid's spacing.
 - `trace_solid_facets`: the exact caustic of a faceted height-field solid on a flat
   bottom face (an exported lens) under parallel light, facet by facet: no photon grid.
 - `chunk_photons`, `PHOTON_BYTES`: photons traced at a time under a `memory_limit`
@@ -176,6 +178,7 @@ images with the disc's weights (`_sources.py`).
 from ._ellipsoid import trace_ellipsoid, trace_ellipsoid_rays
 from ._facets import trace_solid_facets
 from ._lens import emit_lens_photons, trace_lens, trace_lens_photons
+from ._lens_triangles import trace_lens_triangles
 from ._mesh import emit_mesh_photons, intersect_mesh, trace_mesh, trace_mesh_photons
 from ._mirror import trace_mirror, trace_mirror_photons
 from ._optics import PHOTON_BYTES, chunk_photons
@@ -207,6 +210,7 @@ __all__ = [
     "trace_mirror",
     "trace_mirror_photons",
     "trace_solid_facets",
+    "trace_lens_triangles",
     "trace_photons",
     "trace_water",
 ]
