@@ -83,7 +83,7 @@ def _vertex_grid(vertices_per_axis) -> tuple[int, int]:
     """``n`` -> ``(n, n)``; ``(rows, cols)`` -> itself: ints >= 2, at most `MAX_EMITTED`
     vertices."""
     if isinstance(vertices_per_axis, numbers.Integral) and not isinstance(vertices_per_axis, bool):
-        shape = (vertices_per_axis, vertices_per_axis)
+        shape: tuple = (vertices_per_axis, vertices_per_axis)
     else:
         try:
             shape = tuple(vertices_per_axis)
