@@ -1,6 +1,8 @@
 """`legendre`: the anchored, windowed search gives the brute-force maximum, on lines whose
 maximisers jump (wide blocks), on lines too rough for the wide blocks provided for
-(brute force per chunk), and in 2-D with ghost cells."""
+(brute force per chunk), and in 2-D with ghost cells. Blocks of 4 slopes and windows of
+16 points (the module's are 16 and 128) keep the lines short: the same code paths at 64
+points a line, not 512."""
 
 import jax
 import jax.numpy as jnp
@@ -9,7 +11,14 @@ import pytest
 
 from jaxcaustics.inverse import legendre as lg
 
-N = 4 * lg._WINDOW  # the shortest line the windows are used on
+BLOCK, WINDOW = 4, 16
+N = 4 * WINDOW  # the shortest line the windows are used on
+
+
+@pytest.fixture(autouse=True)
+def small_windows(monkeypatch):
+    monkeypatch.setattr(lg, "_BLOCK", BLOCK)
+    monkeypatch.setattr(lg, "_WINDOW", WINDOW)
 
 
 def brute(f, x, s):
@@ -46,9 +55,9 @@ def test_lines_with_many_jumps_fall_back_to_brute_force():
     # 0.1, 0.26, ...: the maximiser jumps 5 times, each jump widening 2 or 3 blocks
     slope = 0.1 + 0.16 * np.floor(6 * x)
     f = np.cumsum(slope) / n + 1e-7 * np.random.default_rng(1).standard_normal((8, n))
-    _, overflow = lg._bracketed_lines(jnp.asarray(f), jnp.asarray(x), jnp.asarray(x))
+    _, overflow = jax.jit(lg._bracketed_lines)(jnp.asarray(f), jnp.asarray(x), jnp.asarray(x))
     assert bool(overflow)  # more wide blocks than provided for
-    out = lg._legendre_lines(jnp.asarray(f), jnp.asarray(x), jnp.asarray(x))
+    out = jax.jit(lg._legendre_lines)(jnp.asarray(f), jnp.asarray(x), jnp.asarray(x))
     np.testing.assert_allclose(np.asarray(out), brute(f, x, x), rtol=0, atol=1e-12)
 
 
