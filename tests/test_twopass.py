@@ -250,9 +250,13 @@ def test_gradients_match_central_differences(rng, knobs):
     heights = sines((16, 20), EXT)
     scene = make_scene(heights, EXT, zenith=30.0, azimuth=20.0, shape=(16, 20), fresnel=True)
     weights = jnp.asarray(rng.normal(size=(16, 20)))
-    loss = _loss_fn(scene, weights, hit_iterations=6, **knobs)
+    # jitted: run eagerly, the op-by-op dispatch of the six loss evaluations, the grad and
+    # the three jvps took 16 s; the checks and tolerances are the same
+    method = jc.method_for(scene, hit_iterations=6, **knobs)  # the window fixed, for jit
+    loss = jax.jit(_loss_fn(scene, weights, method=method))
     args = (scene.surface.heights, scene.rest_depth, scene.light.direction)
-    grads = jax.grad(loss, argnums=(0, 1, 2))(*args)
+    grads = jax.jit(jax.grad(loss, argnums=(0, 1, 2)))(*args)
+    jvp = jax.jit(lambda a, t: jax.jvp(loss, a, t))
     for _ in range(3):
         tangents = (
             jnp.asarray(rng.normal(size=heights.shape)) * 1e-3,
@@ -264,7 +268,7 @@ def test_gradients_match_central_differences(rng, knobs):
         minus = loss(*(a - eps * t for a, t in zip(args, tangents, strict=True)))
         fd = (plus - minus) / (2 * eps)
         rev = sum(jnp.sum(g * t) for g, t in zip(grads, tangents, strict=True))
-        _, fwd = jax.jvp(loss, args, tangents)
+        _, fwd = jvp(args, tangents)
         np.testing.assert_allclose(float(rev), float(fd), rtol=1e-5, atol=1e-8)
         np.testing.assert_allclose(float(fwd), float(fd), rtol=1e-5, atol=1e-8)
 
@@ -350,6 +354,19 @@ HARD = {
 }
 
 
+@jax.jit
+def _hard_value_and_grads(scene):
+    """The squared image's sum and its gradient in the heights and depth, with the paper's
+    window: jitted once per scene structure (the cases share it; run eagerly each case
+    took 5-7 s of op-by-op dispatch, jitted 3.7 s per compile)."""
+
+    def loss(h, depth):
+        s = eqx_set(scene, h, depth, scene.light.direction)
+        return jnp.sum(jc.render(s, jc.TwoPass.paper()) ** 2)
+
+    return jax.value_and_grad(loss, argnums=(0, 1))(scene.surface.heights, scene.rest_depth)
+
+
 # the float64 twin runs on request (slow), for the default run's 10-minute budget
 # (float32, the default, stays)
 @pytest.mark.parametrize("dtype", [np.float32, pytest.param(np.float64, marks=pytest.mark.slow)])
@@ -358,11 +375,6 @@ def test_hard_cases_stay_finite(case, dtype):
     spec = dict(HARD[case])
     heights = spec.pop("heights")()
     scene = make_scene(heights, EXT, dtype=dtype, fresnel=True, **spec)
-
-    def loss(h, depth):
-        s = eqx_set(scene, h, depth, scene.light.direction)
-        return jnp.sum(jc.render(s, jc.TwoPass.paper()) ** 2)
-
     # the paper's window misses light in the strong cases: render says so
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
@@ -370,7 +382,7 @@ def test_hard_cases_stay_finite(case, dtype):
     missed = float(jnp.max(stats["missed_flux_fraction"]))
     said = [w for w in caught if "of the light" in str(w.message)]
     assert len(said) == (missed > MISSED_FLUX_WARNING), (missed, said)
-    value, grads = jax.value_and_grad(loss, argnums=(0, 1))(scene.surface.heights, scene.rest_depth)
+    value, grads = _hard_value_and_grads(scene)
     assert image.dtype == dtype and grads[0].dtype == dtype
     assert bool(jnp.all(jnp.isfinite(image))) and bool(jnp.isfinite(value))
     assert all(bool(jnp.all(jnp.isfinite(g))) for g in grads)
