@@ -272,7 +272,8 @@ def test_traced_hit_gradients(box_scene, dtype, tol):
     o = np.array([[0.02, -0.01, 0.98], [-0.01, 0.03, 1.01], [0.0, 0.0, 1.0]], dtype)
     d = np.array([[0.35, -0.3, -1.0], [0.05, 0.08, -1.0], [0.1, 0.0, 1.0]], dtype)
     z = np.array([0.0, BOX_TOP])
-    (jac_o, jac_d), p = jax.jacfwd(hit_points, argnums=(0, 1), has_aux=True)(
+    # jitted: run eagerly, op by op, 3.3 s (float64) and 2.9 s (float32)
+    (jac_o, jac_d), p = jax.jit(jax.jacfwd(hit_points, argnums=(0, 1), has_aux=True))(
         jnp.asarray(o), jnp.asarray(d)
     )
     assert p.dtype == dtype and jac_o.dtype == dtype
