@@ -153,17 +153,3 @@ def test_a_grid_below_four_samples_a_pixel_is_reported():
     assert "2 samples per target pixel side" in note and "`heights_shape`" in note
     assert notes((1024, 1024), (256, 256)) == []  # four a side
     assert notes((128, 128), (128, 128)) == []  # small targets: as asked
-
-
-def test_the_default_grid_has_two_samples_a_pixel_beyond_1024_where_they_fit():
-    from jaxcaustics.inverse.transport_start import transport_shape
-
-    side = lambda n: transport_shape((n, n), 0.1, 0.1)[0]  # noqa: E731
-    assert [side(n) for n in (100, 300, 512, 700, 1024, 2048)] == [400, 900, 1024, 1400, 2048, 2048]
-    target = np.ones((1024, 1024))
-    roomy = lens_setup.prepare(PROBLEM, target, jc.TransportStart(), None, memory_limit=16 << 30)
-    assert tuple(roomy.shapes[-1]) == (2048, 2048)
-    # under the 2048^2 grid's estimate (6.5 GiB) but over 1024^2's: four times fewer samples
-    tight = lens_setup.prepare(PROBLEM, target, jc.TransportStart(), None, memory_limit=4 << 30)
-    assert tuple(tight.shapes[-1]) == (1024, 1024)
-    assert lens_setup.design_memory((2048, 2048), 1, 0) > 4 << 30

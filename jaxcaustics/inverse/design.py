@@ -287,9 +287,8 @@ def design_lens(
     - `levels`: heights samples along the longer side, coarse to fine; default: powers
       of two from 32 up to twice the target's longer side (heights finer than the
       pixels: a photon cell per half pixel). With the transport start only the last
-      entry counts (the heights grid); default: the target's longer side times 4 up to
-      1024, times 2 beyond, at most 2048 (1024 where 2048 would not fit
-      `memory_limit`; `transport_shape`).
+      entry counts (the heights grid); default: the target's longer side times 4, at
+      most 1024 (`transport_shape`).
     - `max_steps`: solver steps per level (the landing fit's steps).
     - `solver`: ``"levenberg_marquardt"`` or ``"gauss_newton"`` (least squares, both
       with Lineax `NormalCG`, matrix-free, `cg_steps` iterations at most), a minimiser
@@ -566,8 +565,9 @@ def _design_warnings(setup: Setup, reports, error: float, dark_flux: float) -> l
             f"design: the heights grid {tuple(setup.shapes[-1])} has {side:.3g} samples per "
             "target pixel side; below 4 the transport's one-cell staircase shows as a fine "
             "cross-hatch (measured on the camera, judged by the exported solid: 1 - SSIM "
-            "0.04 at 256 pixels with 4, 0.22 at 512 with 2): a larger `heights_shape` (a "
-            "512-pixel camera with 2048^2 heights took 125 s, not 44 s) or a smaller target"
+            "0.04 at 256 pixels with 4, 0.22 at 512 with 2, 0.60 at 1024 with 1): a larger "
+            "`heights_shape` (the transport's time grows with the cube of its side) or a "
+            "smaller target"
         )
     if error > setup.warn_error:
         notes.append(

@@ -36,7 +36,7 @@ from .problem import DesignProblem, Lens, _length
 from .screen_geometry import check_beam_clear, flat_footprint, screen_pose
 from .source_blur import deconvolve, source_kernel
 from .transport import MAX_PIXELS
-from .transport_start import FOUR_PER_PIXEL_MAX, TransportStart, transport_shape
+from .transport_start import TransportStart
 
 
 def _check_target(target) -> np.ndarray:
@@ -245,19 +245,15 @@ def prepare(
             "residual takes the log of each cell's flux); design a "
             f"{type(problem.outline).__name__} outline with the TransportStart"
         )
-    # the image refinement adds its rasteriser budget
-    extra = refine_memory(memory_limit) if finish is not None else 0
-    oversample = start.oversample
     if isinstance(start, TransportStart):
         shapes = [start.shape(t.shape, width, height)]
-        default = start.grid is None and heights_shape is None
-        if default and design_memory(shapes[0], oversample, extra) > memory_limit:
-            # two samples a pixel side beyond 1024^2 only where they fit
-            shapes = [transport_shape(t.shape, width, height, longest=FOUR_PER_PIXEL_MAX)]
     else:
         shapes = start.shapes(t.shape, width, height)
     if heights_shape is not None:
         shapes[-1] = check_shape(heights_shape, "heights_shape", 4)
+    # the image refinement adds its rasteriser budget
+    extra = refine_memory(memory_limit) if finish is not None else 0
+    oversample = start.oversample
     largest = max(shapes, key=lambda s: s[0] * s[1])
     _check_design_memory(largest, oversample, extra, memory_limit)
     aperture = problem.outline.extent

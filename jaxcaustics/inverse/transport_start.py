@@ -38,30 +38,22 @@ from .numerics import area_average, binomial_smooth, resample_corner_grid, resam
 from .screen_geometry import flat_landing
 from .transport import MAX_ITERATIONS, transport_map
 
-# the transport grid's longest side with four heights samples (and transport cells) per
-# target pixel side, what a photo needs: the back-and-forth transport leaves a one-cell
-# staircase in its map (the cells' areas alternate by +-40% where the map compresses),
-# averaged over the pixel's cells. Measured on the camera at 256^2, judged by the
-# exported solid's facets: relative L2 0.041 and 1 - SSIM 0.167 at 512^2 heights (two
-# per pixel: a fine cross-hatch over the sky), 0.020 and 0.047 at 1024^2 (41 s)
-FOUR_PER_PIXEL_MAX = 1024
-# the transport grid's longest side, at most: two samples per pixel side for targets
-# over 512 pixels (a 1024-pixel target: 2048^2, where the design fits `memory_limit`)
-TRANSPORT_MAX = 2048
+# the transport grid's longest side, at most. Four heights samples (and transport cells)
+# per target pixel side are what a photo needs: the back-and-forth transport leaves a
+# one-cell staircase in its map (the cells' areas alternate by +-40% where the map
+# compresses), averaged over the pixel's cells. Measured on the camera at 256^2, judged
+# by the exported solid's facets: relative L2 0.041 and 1 - SSIM 0.167 at 512^2 heights
+# (two per pixel: a fine cross-hatch over the sky), 0.020 and 0.047 at 1024^2 (41 s)
+TRANSPORT_MAX = 1024
 
 
-def transport_shape(
-    target_shape: Sequence[int], width: float, height: float, longest: int = TRANSPORT_MAX
-) -> tuple[int, int]:
+def transport_shape(target_shape: Sequence[int], width: float, height: float) -> tuple[int, int]:
     """The heights (and transport) grid of the transport start: the target's longer side
-    times the largest factor in 1..4 that stays within `FOUR_PER_PIXEL_MAX` samples, or
-    if that is under 2, times 2 within `longest` (at least the target's own size); the
-    other side in proportion to the aperture."""
+    times the largest factor in 1..4 that stays within `TRANSPORT_MAX` samples (at least
+    the target's own size), the other side in proportion to the aperture."""
     n = max(int(v) for v in target_shape)
-    factor = max(1, min(4, FOUR_PER_PIXEL_MAX // n))
-    if factor < 2:
-        factor = max(1, min(2, longest // n))
-    return level_shape(max(n, min(n * factor, longest)), width, height)
+    factor = max(1, min(4, TRANSPORT_MAX // n))
+    return level_shape(min(n * factor, max(n, TRANSPORT_MAX)), width, height)
 
 
 def _source_density(light, aperture, shape, top: float) -> np.ndarray:
@@ -391,8 +383,8 @@ class TransportStart(eqx.Module):
     **Arguments:**
 
     - `grid`: heights samples along the aperture's longer side (the other side in
-      proportion); ``None``: the target's longer side times 4 up to 1024 samples, times
-      2 beyond, at most `TRANSPORT_MAX` (`transport_shape`).
+      proportion); ``None``: the target's longer side times 4, at most `TRANSPORT_MAX`
+      (`transport_shape`).
     - `iterations`: back-and-forth iterations of the transport, at most.
     - `max_steps`: steps of the landing fit, at most (it also stops when a step moves no
       vertex by 1/100 of a pixel, or when its misfit stops falling for three steps).
