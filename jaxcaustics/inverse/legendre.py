@@ -30,7 +30,7 @@ import jax
 import jax.numpy as jnp
 
 _BLOCK = 16  # slopes per block between two anchors
-_WINDOW = 128  # points searched for a block's slopes, from its first anchor's maximiser
+_WINDOW = 128  # points searched for a block's slopes, from the lower bound of their maximisers
 _WIDE_PER_LINE = 4  # blocks per line, pooled over a chunk, searched over the whole line
 _CHUNK_ELEMENTS = 1 << 23  # the largest intermediate of a chunk of lines, elements
 
@@ -81,7 +81,8 @@ def _bracketed_lines(f: jax.Array, x: jax.Array, s: jax.Array):
 
 def _legendre_lines(f: jax.Array, x: jax.Array, s: jax.Array) -> jax.Array:
     """``max_j (s_i x_j - f[l, j])`` along the last axis of `f` ``(lines, n)`` at the
-    increasing slopes `s` ``(m,)``, for points `x` ``(n,)`` increasing: ``(lines, m)``.
+    increasing slopes `s` ``(m,)``, for evenly spaced increasing points `x` ``(n,)``:
+    ``(lines, m)``.
     Chunks of lines go through `_bracketed_lines`, or by brute force where a line is
     too short for the windows or a chunk has more wide blocks than provided for."""
     lines, n = f.shape
