@@ -566,7 +566,7 @@ def _design_warnings(setup: Setup, reports, error: float, dark_flux: float) -> l
             "target pixel side; below 4 the transport's one-cell staircase shows as a fine "
             "cross-hatch (measured on the camera, judged by the exported solid: 1 - SSIM "
             "0.04 at 256 pixels with 4, 0.22 at 512 with 2, 0.60 at 1024 with 1): a larger "
-            "`heights_shape` (the camera at 512 pixels with 2048^2 took 125 s, not 44 s, "
+            "`heights_shape` (the camera at 512 pixels with 2048^2 took 125 s, not 31 s, "
             "and judged 0.138) or a smaller target"
         )
     if error > setup.warn_error:
