@@ -15,8 +15,8 @@ of them, and `_WIDE_PER_LINE` per line (pooled over a chunk of lines) are provid
 for; a chunk with more is transformed by brute force. The result is the brute force's
 (the same products, the same maxima; at most a rounding apart where two points nearly
 tie). Measured (float32, 2 cores, one 2-D transform): 0.06 s against 0.17 s by
-brute force at 1024^2, about 1 s against 6-9 s at 2048^2; alike at 256^2, where short
-lines leave the windows little to skip.
+brute force at 1024^2, 0.8-1.3 s against 5.7-9.1 s at 2048^2 (with other work on the
+machine); alike at 256^2, where short lines leave the windows little to skip.
 
 Why not a library: scipy and scikit-image have no Legendre transform; the linear-time
 convex-hull algorithms (Lucet's) are sequential scans, which run in JAX's `lax.scan`

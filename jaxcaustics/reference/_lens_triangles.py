@@ -34,9 +34,9 @@ def trace_lens_triangles(scene, vertices_per_axis=1025) -> np.ndarray:
     """Irradiance on the screen of a `LensScene` by triangles of traced vertices.
 
     The aperture (``surface.extent``, in the field's own frame) carries a grid of
-    ``rows x cols`` vertices from edge to edge (the far edges a nanometre inside, as the
-    aperture is half-open); each grid cell is split into two triangles along its
-    diagonal. The vertices are traced exactly (`trace_lens_photons`); a triangle whose
+    ``rows x cols`` vertices from edge to edge (the far edges a billionth of the side
+    inside, as the aperture is half-open); each grid cell is split into two triangles
+    along its diagonal. The vertices are traced exactly (`trace_lens_photons`); a triangle whose
     three corners land carries its rest-plane area times the mean of their flux
     densities (Fresnel factors, a point light's ``I |w_z| / r^2``), spread evenly over
     the triangle they land on and split among the pixels by area.
