@@ -329,6 +329,7 @@ def test_transport_design_of_a_black_background_by_the_reference(silhouette_desi
     d = silhouette_design
     target = silhouette()
     assert d.levels[0]["stage"] == "transport" and d.levels[1]["stage"] == "landing fit"
+    assert not d.levels[0]["smooth"]  # a black background: the grid's own transforms
     assert d.heights.shape == (128, 128)  # four heights per pixel side
     assert np.all(np.isfinite(d.heights)) and np.isclose(d.heights.max(), 0.0)
     ref = trace_lens(d.scene, 1024)
@@ -718,3 +719,15 @@ def _bevel_setup(thickness: float, zenith_deg: float) -> SimpleNamespace:
         is_mirror=False,
         light=DirectionalLight.from_angles(zenith_deg),
     )
+
+
+def test_a_target_has_dark_regions_past_a_tenth_of_its_pixels_below_5_percent():
+    """What picks the image refinement's run and the transport's transforms."""
+    from jaxcaustics.inverse.design_setup import has_dark_regions
+
+    target = np.ones((10, 10))
+    target[:1] = 0.04 * target.mean()  # a tenth: not yet
+    assert not has_dark_regions(target)
+    target[1, :1] = 0.0
+    assert has_dark_regions(target)
+    assert has_dark_regions(silhouette()) and not has_dark_regions(blob())

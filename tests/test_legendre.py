@@ -84,3 +84,76 @@ def test_float32_agrees_with_the_float32_brute_force():
     out = lg._legendre_lines(f32, x32, x32)
     expected = lg._brute_lines(f32, x32, x32)
     np.testing.assert_allclose(np.asarray(out), np.asarray(expected), rtol=0, atol=1e-7)
+
+
+def pieces_transform(f, x, s):
+    """The smooth transform's rule in NumPy, by brute force: the best, over the pieces of
+    the discrete maximiser and its two neighbours (piece ``j``: ``x_j +- dx / 2``, slope
+    ``a_j`` and curvature ``b_j`` from central differences, the ends extrapolated
+    quadratically), of ``max over t of (s (x_j + t) - f_j - a_j t - b_j t^2 / 2)``, and
+    of the discrete transform; the best ``t`` in closed form."""
+    dx = x[1] - x[0]
+    first = 3 * f[:, :1] - 3 * f[:, 1:2] + f[:, 2:3]
+    last = 3 * f[:, -1:] - 3 * f[:, -2:-1] + f[:, -3:-2]
+    ext = np.concatenate([first, f, last], axis=1)
+    a = (ext[:, 2:] - ext[:, :-2]) / (2 * dx)
+    b = np.maximum((ext[:, 2:] - 2 * ext[:, 1:-1] + ext[:, :-2]) / dx**2, 0.0)
+    scores = s[None, :, None] * x[None, None, :] - f[:, None, :]
+    best = np.argmax(scores, axis=2)  # (lines, m)
+    out = np.max(scores, axis=2)
+    rows = np.arange(len(f))[:, None]
+    for step in (-1, 0, 1):
+        j = np.clip(best + step, 0, len(x) - 1)
+        u = s[None, :] - a[rows, j]
+        t = np.clip(u / np.maximum(b[rows, j], 1e-300), -0.5 * dx, 0.5 * dx)
+        value = s[None, :] * (x[j] + t) - (f[rows, j] + a[rows, j] * t + 0.5 * b[rows, j] * t**2)
+        out = np.maximum(out, value)
+    return out
+
+
+def test_smooth_transform_of_a_sampled_quadratic_is_the_exact_conjugate():
+    """A quadratic's interpolant is the quadratic itself: its transform is exact wherever
+    the maximiser lies on the grid (``s / k`` within ``[0, 1]``), in 2-D too; the
+    discrete transform is a staircase's, off by up to ``k dx^2 / 8``."""
+    n = N
+    h = 1.0 / n
+    x = (np.arange(n) + 0.5) * h
+    X, Y = np.meshgrid(x, x)
+    kx, ky = 1.3, 0.7  # ky < 1: some grid points lie between the discrete maximisers
+    f = 0.5 * (kx * X**2 + ky * Y**2)
+    exact = 0.5 * (X**2 / kx + Y**2 / ky)
+    on_grid = Y / ky <= 1.0
+    smooth = np.asarray(jax.jit(lambda a: lg.legendre(a, h, smooth=True))(jnp.asarray(f)))
+    np.testing.assert_allclose(smooth[on_grid], exact[on_grid], rtol=0, atol=1e-13)
+    discrete = np.asarray(jax.jit(lambda a: lg.legendre(a, h))(jnp.asarray(f)))
+    assert np.max(np.abs(discrete - exact)[on_grid]) > 0.1 * h * h  # it could fail
+
+
+@pytest.mark.parametrize("windowed", [False, True])
+def test_smooth_lines_are_the_interpolants_transform(windowed):
+    """Convex lines with a linear stretch (the maximiser jumps over it) and kinks, short
+    (brute force) and long enough for the windows, at slopes beyond the ends too: the
+    rule of `pieces_transform` (found there by an argmax, here by a sorted search)."""
+    n = N if windowed else 24
+    f, x = kinked_lines(lines=4, n=n)
+    f = f + 0.05 * np.abs(x - 0.5)[None, :] * np.arange(4)[:, None]  # kinks of three sizes
+    s = np.linspace(-0.2, 1.2, 3 * n)
+    out = jax.jit(lg._smooth_lines)(jnp.asarray(f), jnp.asarray(x), jnp.asarray(s))
+    expected = pieces_transform(f, x, s)
+    np.testing.assert_allclose(np.asarray(out), expected, rtol=0, atol=1e-12)
+    assert np.max(np.abs(brute(f, x, s) - expected)) > 1e-5  # not the discrete transform
+
+
+def test_smooth_lines_never_fall_below_the_discrete_transform():
+    """On lines that are not convex (noise of 1e-3), where the sorted search can miss
+    the best piece, the result is at least the discrete transform, and at most half a
+    point's step above it (a piece's gain is at most ``|s - a_j| dx / 2``)."""
+    n = N
+    x = (np.arange(n) + 0.5) / n
+    f = 0.5 * x**2 + 1e-3 * np.random.default_rng(3).standard_normal((6, n))
+    s = np.linspace(0.0, 1.0, n)
+    out = np.asarray(jax.jit(lg._smooth_lines)(jnp.asarray(f), jnp.asarray(x), jnp.asarray(s)))
+    discrete = brute(f, x, s)
+    assert np.all(out >= discrete - 1e-15)
+    assert np.all(out <= discrete + 0.5 / n * 2.0)
+    assert np.max(out - discrete) > 0  # the pieces do add something

@@ -276,4 +276,6 @@ def test_a_target_correction_brings_a_mirror_design_closer():
         one = jc.design(problem, target, finish=None)
     stages = [r["stage"] for r in one.levels]
     assert stages.count("target correction") == 1 and stages.count("landing fit") == 2
+    # no dark regions: the smooth Legendre transforms (`TransportStart.smooth`)
+    assert [r["smooth"] for r in one.levels if r["stage"] == "transport"] == [True, True]
     assert one.predicted_error < none.predicted_error

@@ -209,3 +209,26 @@ def test_a_non_separable_map_depends_on_the_stretch():
     plain = transport_map(mu, nu, iterations=60, warn=False)
     stretched = transport_map(mu, nu, iterations=60, warn=False, stretch=0.8)
     assert np.abs(stretched.map_x / 0.8 - plain.map_x).max() * N > 0.5
+
+
+def test_smooth_transforms_leave_no_staircase_where_the_map_compresses():
+    """Uniform light onto a target up to 4x brighter: the grid's transforms put every
+    maximiser on a cell centre, and the cells' images alternate in area (measured: RMS
+    16% of the local mean, up to 86%); the smooth interpolants' map moves continuously
+    (RMS 0.6%, at most 3%) and pushes the source forward closer to the target (misfit
+    0.015 against 0.118)."""
+    from scipy.ndimage import uniform_filter
+
+    mu = np.ones((N, N))
+    nu = 0.3 + 1.4 * XX * (0.5 + YY)
+
+    def alternation(plan):
+        a = quad_areas(plan)
+        return np.abs(a / uniform_filter(a, 3, mode="nearest") - 1)[2:-2, 2:-2]
+
+    grid = transport_map(mu, nu, iterations=100, warn=False)
+    smooth = transport_map(mu, nu, iterations=100, warn=False, smooth=True)
+    assert np.sqrt(np.mean(alternation(grid) ** 2)) > 0.1  # the staircase is there
+    assert np.sqrt(np.mean(alternation(smooth) ** 2)) < 0.02
+    assert alternation(smooth).max() < 0.1
+    assert smooth.residual[-1] < 0.03 < grid.residual[-1]

@@ -13,6 +13,18 @@ from ..scene.mirror import MirrorScene
 from ..scene.scene import HeightField, LensScene, PlaneReceiver
 from .problem import DesignProblem, Mirror
 
+# a target pixel below this fraction of the mean is dark; a target with more than
+# `DARK_SHARE` of its pixels dark has dark regions, across which the transport's map jumps
+DARK_LEVEL = 0.05
+DARK_SHARE = 0.1
+
+
+def has_dark_regions(goal) -> bool:
+    """Whether more than `DARK_SHARE` of `goal`'s pixels are below `DARK_LEVEL` times
+    its mean (a silhouette or lettering on black; not a photograph)."""
+    g = np.asarray(goal, float)
+    return float(np.mean(g < DARK_LEVEL * g.mean())) > DARK_SHARE
+
 
 @dataclasses.dataclass
 class Setup:

@@ -17,7 +17,7 @@ from .._checks import check_int
 from ..methods.triangles.method import caustic_triangles
 from ..scene.mirror import MirrorScene
 from ..scene.scene import LensScene
-from .design_setup import Setup
+from .design_setup import DARK_LEVEL, Setup, has_dark_regions
 from .driver import iterate
 from .lens_model import fit_symbol
 
@@ -197,10 +197,9 @@ class ImageRefinement(eqx.Module):
         ``(heights, report or None)``: None when there was nothing to refine."""
         dtype = jnp.result_type(float)
         goal = setup.seen_goal / setup.seen_goal.mean()
-        dark_pixels = float(np.mean(goal < 0.05))
         steps = self.budget(setup)
         # straight light with no large dark regions: few jumps of the map to clean up
-        if steps == 0 or (_straight(setup) and dark_pixels <= 0.1):
+        if steps == 0 or (_straight(setup) and not has_dark_regions(goal)):
             return h, None
         setup.check_thickness(h)  # before its scene is built
         n = self.photons or min(4 * max(setup.target_shape) + 1, MAX_DEFAULT_PHOTONS)
@@ -217,7 +216,7 @@ class ImageRefinement(eqx.Module):
         refine = _ImageRefine(
             setup.element_scene(np.asarray(h)),
             jnp.asarray(goal, dtype),
-            jnp.asarray(goal < 0.05),
+            jnp.asarray(goal < DARK_LEVEL),
             jnp.asarray(np.sqrt(symbol), dtype),
             jnp.asarray(_resolved_modes(symbol.shape, modes)),
             n,

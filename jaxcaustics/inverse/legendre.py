@@ -18,6 +18,13 @@ tie). Measured (float32, 2 cores, one 2-D transform): 0.06 s against 0.17 s by
 brute force at 1024^2, 0.8-1.3 s against 5.7-9.1 s at 2048^2 (with other work on the
 machine); alike at 256^2, where short lines leave the windows little to skip.
 
+`smooth` transforms each line's C^1 piecewise quadratic interpolant instead
+(`_pieces`, `_smooth_lines`): the discrete transform's maximiser is a grid point, so the
+transport's map moves by a whole cell or not at all where it compresses (a one-cell
+staircase); the interpolant's maximiser moves continuously. A sampled quadratic is
+transformed exactly. It costs the discrete transform, a sorted search and one gather:
+0.27 s against 0.10 s a 2-D transform at 1024^2 (float32, 2 cores).
+
 Why not a library: scipy and scikit-image have no Legendre transform; the linear-time
 convex-hull algorithms (Lucet's) are sequential scans, which run in JAX's `lax.scan`
 at a fraction of the vectorised search's speed (a hull scan in a `lax.scan`, tried at
@@ -101,6 +108,61 @@ def _legendre_lines(f: jax.Array, x: jax.Array, s: jax.Array) -> jax.Array:
     return _map_chunks(one, f, chunk, m)
 
 
+def _pieces(f: jax.Array, dx) -> tuple[jax.Array, jax.Array, jax.Array]:
+    """Each point's piece of the smooth interpolant of the lines `f` ``(lines, n)``:
+    the C^1 piecewise quadratic whose slope runs linearly between the differences
+    ``(f[j + 1] - f[j]) / dx`` at the midpoints (so that where a line is convex its
+    transform's maximiser moves continuously, not from point to point): piece ``j``
+    spans ``x_j +- dx / 2`` with slope ``a_j`` at ``x_j`` (the central difference) and
+    curvature ``b_j`` (the second difference, 0 where the line is concave; the ends
+    extrapolated quadratically). Returns ``(a, 1 / b, b / 2)``, each ``(lines, n)``."""
+    if f.shape[1] >= 3:
+        first = 3 * f[:, :1] - 3 * f[:, 1:2] + f[:, 2:3]
+        last = 3 * f[:, -1:] - 3 * f[:, -2:-1] + f[:, -3:-2]
+    else:
+        first, last = 2 * f[:, :1] - f[:, 1:2], 2 * f[:, -1:] - f[:, -2:-1]
+    ext = jnp.concatenate([first, f, last], axis=1)
+    slope = (ext[:, 2:] - ext[:, :-2]) / (2 * dx)
+    curve = jnp.maximum((ext[:, 2:] - 2 * ext[:, 1:-1] + ext[:, :-2]) / dx**2, 0.0)
+    return slope, 1.0 / jnp.maximum(curve, jnp.finfo(f.dtype).tiny), 0.5 * curve
+
+
+def _smooth_lines(f: jax.Array, x: jax.Array, s: jax.Array) -> jax.Array:
+    """`_legendre_lines` of each line's smooth interpolant (`_pieces`): at slope ``s``
+    the best over piece ``j`` of ``s (x_j + t) - f_j - a_j t - b_j t^2 / 2``
+    (``|t| <= dx / 2``), which is ``t (|u| - b_j t / 2)`` above the discrete score at
+    ``t = min(|u| / b_j, dx / 2)``, ``u = s - a_j``.
+
+    Where a line is convex the best piece is the discrete maximiser's: the point
+    ``j`` with ``j`` differences ``(f[k + 1] - f[k]) / dx`` below ``s`` (a sorted
+    search; the two switch where ``s`` crosses a difference). It and its neighbours
+    are tried, with the running maximum of the differences where a line is not
+    convex, and the result is never below the discrete transform (where a concave
+    stretch makes the search miss, the discrete value stands). The three pieces'
+    numbers are gathered as one slice (twelve gathers of one number took 0.5 s, not
+    0.18 s, for a 1024^2 transform on 2 cores)."""
+    lines, n = f.shape
+    dx = x[1] - x[0]
+    discrete = _legendre_lines(f, x, s)
+    rising = jax.lax.cummax((f[:, 1:] - f[:, :-1]) / dx, axis=1)
+    below = jax.vmap(lambda row: jnp.searchsorted(row, s, side="left"))(rising)
+    slope, inverse, half_curve = _pieces(f, dx)
+    pieces = jnp.stack([jnp.broadcast_to(x, f.shape), f, slope, inverse, half_curve], axis=-1)
+    # a piece either side that never wins (its score is -1e30), for the neighbours
+    never = jnp.zeros((lines, 1, 5), f.dtype).at[..., 1].set(1e30)
+    pieces = jnp.concatenate([never, pieces, never], axis=1)  # (lines, n + 2, 5)
+
+    def three(line, j):  # pieces j - 1, j, j + 1 (padded index j .. j + 2)
+        return jax.lax.dynamic_slice(line, (j, jnp.zeros_like(j)), (3, 5))
+
+    near = jax.vmap(jax.vmap(three, (None, 0)), (0, 0))(pieces, below.astype(jnp.int32))
+    xj, fj, a, inv, half = (near[..., k] for k in range(5))  # each (lines, m, 3)
+    u = jnp.abs(s[None, :, None] - a)
+    t = jnp.minimum(u * inv, 0.5 * dx)
+    score = s[None, :, None] * xj - fj + t * (u - half * t)
+    return jnp.maximum(discrete, jnp.max(score, axis=2))
+
+
 def _map_chunks(fn, f: jax.Array, chunk: int, m: int) -> jax.Array:
     """`fn` over consecutive chunks of `chunk` lines of `f` (padded with zero lines to a
     whole number of chunks), concatenated: ``(lines, m)``."""
@@ -116,16 +178,20 @@ def cell_centres(n: int, h, ghost: int, dtype):
     return (jnp.arange(-ghost, n + ghost, dtype=dtype) + 0.5) * h
 
 
-def legendre(f: jax.Array, h, ghost: int = 0, hy=None) -> jax.Array:
+def legendre(f: jax.Array, h, ghost: int = 0, hy=None, smooth: bool = False) -> jax.Array:
     """Discrete Legendre transform ``f*(s) = max_x (s . x - f(x))`` of `f` given at the
     cell centres of its ``(rows, cols)`` grid (cells `h` wide, `hy` high: `h` if None),
     evaluated at the centres of the same grid grown by `ghost` cells on every side:
-    ``(rows + 2 ghost, cols + 2 ghost)``."""
+    ``(rows + 2 ghost, cols + 2 ghost)``. `smooth`: each 1-D transform is that of the
+    line's smooth interpolant (`_smooth_lines`), whose slope (the transport's map)
+    moves within the cells where the discrete transform's steps from one centre to
+    the next."""
     hy = h if hy is None else hy
     rows, cols = f.shape
     dtype = f.dtype
-    g = _legendre_lines(f, cell_centres(cols, h, 0, dtype), cell_centres(cols, h, ghost, dtype))
+    lines = _smooth_lines if smooth else _legendre_lines
+    g = lines(f, cell_centres(cols, h, 0, dtype), cell_centres(cols, h, ghost, dtype))
     # f*(s) = max_r (s_row x_r + g(r, s_col)) = max_r (s_row x_r - (-g))
     x, s = cell_centres(rows, hy, 0, dtype), cell_centres(rows, hy, ghost, dtype)
-    out = _legendre_lines(-g.T, x, s)
+    out = lines(-g.T, x, s)
     return out.T

@@ -94,11 +94,11 @@ def _normalised(rho: jax.Array, mass) -> jax.Array:
     return rho * (mass / jnp.where(total > 0, total, 1.0))
 
 
-@functools.partial(jax.jit, static_argnames=("buffer",))
-def _back_and_forth(mu, nu, iterations, buffer: int, tol, sigma0, stall, stretch):
+@functools.partial(jax.jit, static_argnames=("buffer", "smooth"))
+def _back_and_forth(mu, nu, iterations, buffer: int, tol, sigma0, stall, stretch, smooth):
     """`iterations` at most (traced: passes of different lengths share one compilation),
     their residuals in a ``(buffer,)`` history (``buffer >= iterations``); cells
-    `stretch` times as wide as high."""
+    `stretch` times as wide as high; `smooth`: see `transport_map`."""
     rows, cols = mu.shape
     dtype = mu.dtype
     hy = jnp.asarray(1.0 / max(rows, cols), dtype)
@@ -118,7 +118,9 @@ def _back_and_forth(mu, nu, iterations, buffer: int, tol, sigma0, stall, stretch
         onto the other side."""
         work = -neumann_poisson(rho - dens, h, hy)  # (-Laplacian)^-1 (rho - dens)
         grad_sq = jnp.sum(work * (rho - dens)) * h * hy
-        q = legendre(p + sigma * work, h, hy=hy)
+        # q's map is pushed forward (`smooth`: the smooth interpolant's, `legendre`); p is
+        # only made convex again
+        q = legendre(p + sigma * work, h, hy=hy, smooth=smooth)
         p = legendre(q, h, hy=hy)
         new = dual(p, q)
         scale, lower, upper = _ARMIJO
@@ -157,7 +159,7 @@ def _back_and_forth(mu, nu, iterations, buffer: int, tol, sigma0, stall, stretch
     residuals = jnp.full((buffer,), jnp.nan, dtype)
     carry = (0, phi, psi, mu, jnp.asarray(sigma0, dtype), value(phi, psi), residuals)
     k, phi, psi, rho_y, sigma, _, residuals = jax.lax.while_loop(cond, body, carry)
-    return k, legendre(phi, h, hy=hy), residuals
+    return k, legendre(phi, h, hy=hy, smooth=smooth), residuals
 
 
 def _extrapolate_ends(a: jax.Array, axis: int) -> jax.Array:
@@ -206,6 +208,7 @@ def transport_map(
     stall: float = 5e-3,
     warn: bool = True,
     stretch: float = 1.0,
+    smooth: bool = False,
 ) -> TransportMap:
     """The optimal transport map (quadratic cost) from density `source` to `target`.
 
@@ -228,6 +231,17 @@ def transport_map(
       then that of the grid stretched along x, ``((x1 - y1)^2 + (x2 - y2)^2) / 2`` over
       ``[0, stretch cols h] x [0, rows h]``, where the map's coordinates are (lens
       design under leaning light: `transport_start.transport_stretch`).
+    - `smooth`: the map from the Legendre transforms of the potentials' smooth
+      (piecewise quadratic) interpolants, not of their grid values. The grid's
+      transforms put every maximiser on a cell centre, so where the map compresses (a
+      target brighter than its source) it moves by a whole cell or not at all, and the
+      cells' images alternate in area by about +-40%: a one-cell staircase, which shows
+      as a cross-hatch unless each target pixel spans four cells a side. The smooth
+      transforms' map moves continuously (measured on the camera at 512^2 pixels on a
+      1024^2 grid: the pushed-forward misfit 0.111 -> 0.042, the image's relative L2
+      0.041 -> 0.033 and 1 - SSIM 0.171 -> 0.088, in 25 s against 18 s). Where a
+      density has features a few cells wide it converges worse (two equal Gaussians 3.8
+      cells wide: misfit 0.058 against 0.028, the map 0.3 pixel off against 0.04).
 
     **Returns:** a `TransportMap` (corner map, potential, residual history).
     """
@@ -239,6 +253,7 @@ def transport_map(
     tol = check_number(tol, "tol", low=0.0)
     stall = check_number(stall, "stall", low=0.0, high=1.0, high_open=True)
     warn = check_bool(warn, "warn")
+    smooth = check_bool(smooth, "smooth")
     dtype = jnp.result_type(float)
     mu = mu / mu.mean()
     nu = nu / nu.mean()
@@ -254,6 +269,7 @@ def transport_map(
         sigma0,
         stall,
         jnp.asarray(stretch, dtype),
+        smooth,
     )
     hy = jnp.asarray(1.0 / max(mu.shape), dtype)
     mx, my = _corner_map(psi, hy * jnp.asarray(stretch, dtype), hy)

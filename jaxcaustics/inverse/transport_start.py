@@ -17,12 +17,12 @@ import jax.numpy as jnp
 import numpy as np
 import optimistix as optx
 
-from .._checks import check_int, check_number
+from .._checks import check_bool, check_int, check_number
 from .._warnings import warn_user
 from ..scene.outline import inside_outline
 from ..scene.scene import DirectionalLight
 from ..scene.surface import sample_grid
-from .design_setup import Setup
+from .design_setup import Setup, has_dark_regions
 from .driver import iterate
 from .lens_model import (
     LENS_BOUNDARY,
@@ -186,18 +186,19 @@ def _transport_goal(
     keep=None,
     smooth=False,
     stretch: float = 1.0,
+    smooth_map: bool = False,
 ):
     """The landing points of the photon vertices: the optimal transport from the
     aperture's flux (times `keep` per cell, if given) to the target, on the heights
     grid (its cells `stretch` times as wide as high in the transport's cost:
     `transport_stretch`), in `iterations` at most; `smooth`: the map smoothed by a
     [1, 2, 1] / 4 kernel along each axis (for a fit that reads it between its samples:
-    leaning light). Returns ``(goal_x, goal_y,
-    transport)`` (metres; the `TransportMap`)."""
+    leaning light); `smooth_map`: the transport's `smooth` transforms. Returns
+    ``(goal_x, goal_y, transport)`` (metres; the `TransportMap`)."""
 
     dtype = jnp.result_type(float)
     if not setup.vertical:  # on the screen, through the flat element's map
-        gx, gy, plan = _screen_goal(setup, shape, problem, iterations, keep, stretch)
+        gx, gy, plan = _screen_goal(setup, shape, problem, iterations, keep, stretch, smooth_map)
         if smooth:
             gx, gy = binomial_smooth(gx), binomial_smooth(gy)
         return jnp.asarray(gx, dtype), jnp.asarray(gy, dtype), plan
@@ -210,7 +211,9 @@ def _transport_goal(
     # (vertical light: the screen's axes run along the blank's; every other case is
     # transported on the screen, `_screen_goal`)
     sx0, sx1, sy0, sy1 = setup.screen
-    plan = transport_map(source, target, iterations=iterations, warn=False, stretch=stretch)
+    plan = transport_map(
+        source, target, iterations=iterations, warn=False, stretch=stretch, smooth=smooth_map
+    )
     rows, cols = shape
     h = 1.0 / max(rows, cols)
     gx = sx0 + (sx1 - sx0) * plan.map_x / (stretch * cols * h)
@@ -261,7 +264,7 @@ def _flat_image(setup: Setup, shape, keep=None, sub: int = 2):
     return image[1:-1, 1:-1]
 
 
-def _screen_goal(setup: Setup, shape, problem: LensModel, iterations, keep, stretch):
+def _screen_goal(setup: Setup, shape, problem: LensModel, iterations, keep, stretch, smooth_map):
     """The landing points of the photon vertices, by a transport on the screen: from the
     flat element's caustic (`_flat_image`) to the target, both on the screen's grid of
     `shape` cells, composed with the flat element's map (a vertex goes where the
@@ -271,7 +274,9 @@ def _screen_goal(setup: Setup, shape, problem: LensModel, iterations, keep, stre
     ``(goal_x, goal_y, transport)`` on the photon grid (metres)."""
     source = _flat_image(setup, shape, keep)
     target = area_average(setup.goal, shape)
-    plan = transport_map(source, target, iterations=iterations, warn=False, stretch=stretch)
+    plan = transport_map(
+        source, target, iterations=iterations, warn=False, stretch=stretch, smooth=smooth_map
+    )
     rows, cols = shape
     h = 1.0 / max(rows, cols)
     sx0, sx1, sy0, sy1 = setup.screen
@@ -406,11 +411,19 @@ class TransportStart(eqx.Module):
     floor: float = 0.0
     oversample: int = 1
     corrections: int | None = None
+    smooth: bool | None = None
     # the designed surface's `HeightField` boundary (`LENS_BOUNDARY` says why)
     boundary: ClassVar[str] = LENS_BOUNDARY
 
     def __init__(
-        self, grid=None, iterations=100, max_steps=40, floor=0.0, oversample=1, corrections=None
+        self,
+        grid=None,
+        iterations=100,
+        max_steps=40,
+        floor=0.0,
+        oversample=1,
+        corrections=None,
+        smooth=None,
     ):
         self.grid = None if grid is None else check_int(grid, "grid", 4)
         self.iterations = check_int(iterations, "iterations", 1, MAX_ITERATIONS)
@@ -420,6 +433,7 @@ class TransportStart(eqx.Module):
         self.corrections = (
             None if corrections is None else check_int(corrections, "corrections", 0, 8)
         )
+        self.smooth = None if smooth is None else check_bool(smooth, "smooth")
 
     def correction_rounds(self, setup: Setup) -> int:
         """Rounds of target correction for `setup` (`corrections`, or its default)."""
@@ -470,6 +484,7 @@ class TransportStart(eqx.Module):
         else:
             h0 = jnp.zeros(shape, dtype)
         info = {"level": 0, "shape": shape}
+        smooth_map = not has_dark_regions(setup.goal) if self.smooth is None else self.smooth
         transport_s, transport_steps = 0.0, 0
         steps, seconds, compile_s = 0, 0.0, float("nan")
         # a mirror's warm start under leaning light (a target correction's) knows its
@@ -481,8 +496,9 @@ class TransportStart(eqx.Module):
             t0 = time.perf_counter()
             rough = min(_ROUGH_PASS[0], self.iterations) if leaning else self.iterations
             goal_x, goal_y, plan = _transport_goal(
-                setup, shape, model, rough, smooth=leaning, stretch=stretch
-            )
+                setup, shape, model, rough, smooth=leaning, stretch=stretch,
+                smooth_map=smooth_map,
+            )  # fmt: skip
             transport_s = time.perf_counter() - t0
             transport_steps = plan.iterations
             fit = eqx.tree_at(lambda f: (f.goal_x, f.goal_y), fit, (goal_x, goal_y))
@@ -499,8 +515,9 @@ class TransportStart(eqx.Module):
         if leaning:  # in full, without the band that the bevel takes, from these heights
             t1 = time.perf_counter()
             goal_x, goal_y, plan = _transport_goal(
-                setup, shape, model, self.iterations, keep, smooth=True, stretch=stretch
-            )
+                setup, shape, model, self.iterations, keep, smooth=True, stretch=stretch,
+                smooth_map=smooth_map,
+            )  # fmt: skip
             transport_s += time.perf_counter() - t1
             transport_steps += plan.iterations
             fit = eqx.tree_at(lambda f: (f.goal_x, f.goal_y), fit, (goal_x, goal_y))
@@ -520,6 +537,7 @@ class TransportStart(eqx.Module):
                 "stage": "transport",
                 "shape": shape,
                 "steps": transport_steps,  # both passes' under leaning light
+                "smooth": smooth_map,  # the smooth Legendre transforms
                 "loss": float(plan.residual[-1]),
                 "result": (
                     optx.RESULTS.successful if plan.converged else optx.RESULTS.max_steps_reached
