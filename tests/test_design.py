@@ -731,3 +731,32 @@ def test_a_target_has_dark_regions_past_a_tenth_of_its_pixels_below_5_percent():
     target[1, :1] = 0.0
     assert has_dark_regions(target)
     assert has_dark_regions(silhouette()) and not has_dark_regions(blob())
+
+
+def test_a_photograph_on_a_coarse_grid_gets_a_few_refinement_steps():
+    """Fewer than four heights samples a target pixel side, with at least two of the
+    refinement's photons: a photograph is refined too (`PHOTO_STEPS`); with four
+    samples, not; a target on black gets `STEPS`. The variable's scale grows with the
+    landing gain in pixels (4x the pixels: 4x the scale), never below 1."""
+    import jaxcaustics as jc
+    from jaxcaustics.inverse import image_refine
+    from jaxcaustics.inverse.lens_setup import prepare
+
+    problem = jc.DesignProblem(jc.Lens(0.02), jc.Rectangle(0.1, 0.1), jc.Screen(0.5))
+    finish = jc.ImageRefinement()
+
+    def setup(target, grid):
+        return prepare(problem, target, jc.TransportStart(grid=grid), finish)
+
+    coarse, fine = setup(blob(32), 64), setup(blob(32), 128)
+    n = finish.photons_for(coarse)
+    assert image_refine._fine_detail(coarse, n) and not image_refine._fine_detail(fine, n)
+    assert not image_refine._fine_detail(coarse, 2 * 32)  # one photon a pixel side
+    assert finish.budget(coarse) == image_refine.PHOTO_STEPS
+    assert finish.budget(setup(silhouette(), 64)) == image_refine.STEPS
+    assert image_refine._variable_scale(coarse) == 1.0  # 32 pixels: below the tuned gain
+    wide, wider = setup(blob(256), 512), setup(blob(512), 1024)
+    assert image_refine._variable_scale(wide) > 1.0
+    assert image_refine._variable_scale(wider) == pytest.approx(
+        2 * image_refine._variable_scale(wide)
+    )

@@ -119,17 +119,22 @@ _LENS_GAIN = 0.5 * (0.5 + 0.01 / 1.5) / (0.1 / 128)
 
 
 def _variable_scale(setup: Setup) -> float:
-    """The refinement variable's scale: 1 for lenses (as tuned); for a mirror, twice its
-    landing gain over the quickstart lens's. A mirror moves its light 8 times as far per
-    unit slope as a lens of index 1.5 at the same screen distance: at scale 1 L-BFGS
-    overshot and every step was rejected (measured on the silhouette off a mirror, 30
-    degrees, 1 m: the misfit 0.00745 unchanged in 8 steps; at scales 3, 8, 12, 20 it fell
-    to 0.0047, 0.0039, 0.0036, 0.0035, the predicted error from 0.092 to 0.061, 0.054,
-    0.050, 0.047; at 20 this rule's 18)."""
-    if not setup.is_mirror:
-        return 1.0
+    """The refinement variable's scale: a lens's landing gain (pixels per unit slope)
+    over the quickstart lens's at 128 pixels, for which it was tuned, and at least 1;
+    for a mirror, twice its landing gain over the quickstart lens's.
+
+    A finer screen moves more pixels per unit slope: at scale 1 the camera at 512
+    pixels (gain 4.3 times the tuned one) spent its first four L-BFGS steps on rejected
+    line searches (the misfit 0.00096 unchanged, then 0.00047 after eight); at scale 4
+    it fell at every step, to 0.00048 after four. A mirror moves its light 8 times as
+    far per unit slope as a lens of index 1.5 at the same screen distance: at scale 1
+    L-BFGS overshot and every step was rejected (measured on the silhouette off a
+    mirror, 30 degrees, 1 m: the misfit 0.00745 unchanged in 8 steps; at scales 3, 8,
+    12, 20 it fell to 0.0047, 0.0039, 0.0036, 0.0035, the predicted error from 0.092 to
+    0.061, 0.054, 0.050, 0.047; at 20 this rule's 18)."""
     pixel = (setup.screen[1] - setup.screen[0]) / setup.target_shape[1]
-    return 2.0 * (setup.weak / pixel) / _LENS_GAIN
+    gain = (setup.weak / pixel) / _LENS_GAIN
+    return 2.0 * gain if setup.is_mirror else max(1.0, gain)
 
 
 STEPS = 8  # under vertical light onto a lens over the ground
@@ -140,6 +145,22 @@ STEPS = 8  # under vertical light onto a lens over the ground
 # 0.032, 1.33%, 170 s against 0.067, 0.028, 1.24%, 292 s
 MAX_DEFAULT_PHOTONS = 1025
 LEANING_STEPS = 24  # anywhere else (measured: see `ImageRefinement`)
+# for a photograph (no dark regions) under vertical light, where the heights grid has
+# fewer than four samples a target pixel side (`_fine_detail`)
+PHOTO_STEPS = 4
+
+
+def _fine_detail(setup: Setup, photons: int) -> bool:
+    """A photograph's heights grid with fewer than four samples a target pixel side
+    (a 512-pixel target's 1024^2), refined with at least two photons a pixel side: the
+    transport leaves edges and fine texture a fraction of a pixel off there, which the
+    image misfit puts back (measured on the camera at 512 pixels, height map judged by
+    `reference.trace_lens_triangles`: relative L2 0.035 and 1 - SSIM 0.101 without,
+    0.018 and 0.034 after eight steps at scale 1; with one photon a pixel side, 0.045
+    and 0.147: worse)."""
+    rows, cols = setup.shapes[-1]
+    side = max(setup.target_shape)
+    return max(rows, cols) < 4 * side and photons >= 2 * side + 1
 
 
 def _straight(setup: Setup) -> bool:
@@ -156,9 +177,11 @@ class ImageRefinement(eqx.Module):
     of the flux on dark pixels (the target below 5% of its mean), moving the heights' DCT
     modes up to two per target pixel; the result is kept only if the misfit fell.
 
-    Under vertical light onto a lens over the ground it runs only when the target is
-    dark on more than 10% of the screen (there the transport map jumps and the fitted
-    surface spreads light across the gaps; elsewhere the transport start is as good).
+    Under vertical light onto a lens over the ground it runs when the target is dark on
+    more than 10% of the screen (there the transport map jumps and the fitted surface
+    spreads light across the gaps), and on a photograph whose heights grid has fewer
+    than four samples a target pixel side (`_fine_detail`: a 512-pixel target); else
+    the transport start is as good.
     Anywhere else the landing fit cannot make the transport's map exactly (the map the
     element makes is then not a gradient: `prediction.py`), and leaves the target's
     edges a fraction of a pixel off, which the image misfit puts back (measured on the
@@ -169,8 +192,8 @@ class ImageRefinement(eqx.Module):
     **Arguments:**
 
     - `steps`: L-BFGS steps (a budget: the misfit is polished, not solved); 0: none;
-      ``None`` (default): `STEPS` under vertical light onto a lens over the ground,
-      `LEANING_STEPS` otherwise.
+      ``None`` (default): `STEPS` under vertical light onto a lens over the ground
+      (`PHOTO_STEPS` for a photograph), `LEANING_STEPS` otherwise.
     - `photons`: photons per side of the caustic-triangles image; ``None``: 4 per
       target pixel side, at most `MAX_DEFAULT_PHOTONS` (1025).
 
@@ -190,7 +213,13 @@ class ImageRefinement(eqx.Module):
         """The steps for `setup`: `steps`, or its default."""
         if self.steps is not None:
             return self.steps
-        return STEPS if _straight(setup) else LEANING_STEPS
+        if not _straight(setup):
+            return LEANING_STEPS
+        return STEPS if has_dark_regions(setup.seen_goal) else PHOTO_STEPS
+
+    def photons_for(self, setup: Setup) -> int:
+        """Photons per side of the refinement's image: `photons`, or its default."""
+        return self.photons or min(4 * max(setup.target_shape) + 1, MAX_DEFAULT_PHOTONS)
 
     def refine(self, setup: Setup, h: np.ndarray, history: list, callback):
         """Refine heights `h` ``(rows, cols)`` (metres) of `setup`'s lens. Returns
@@ -198,11 +227,13 @@ class ImageRefinement(eqx.Module):
         dtype = jnp.result_type(float)
         goal = setup.seen_goal / setup.seen_goal.mean()
         steps = self.budget(setup)
-        # straight light with no large dark regions: few jumps of the map to clean up
-        if steps == 0 or (_straight(setup) and not has_dark_regions(goal)):
+        n = self.photons_for(setup)
+        # straight light with no large dark regions: few jumps of the map to clean up,
+        # unless the grid is coarse for the picture's detail
+        photo = _straight(setup) and not has_dark_regions(goal)
+        if steps == 0 or (photo and not _fine_detail(setup, n)):
             return h, None
         setup.check_thickness(h)  # before its scene is built
-        n = self.photons or min(4 * max(setup.target_shape) + 1, MAX_DEFAULT_PHOTONS)
         # modes the photon grid resolves (finer ones it sees aliased, as coarser ones,
         # and grows into a texture), and at most two per target pixel (finer ones the
         # image does not resolve: measured, all 512 modes of a 128^2 target under
