@@ -137,19 +137,27 @@ def test_the_cli_names_memory_limit(tmp_path, capsys):
 
 
 def test_a_grid_below_four_samples_a_pixel_is_reported():
-    """A 512-pixel target's default grid (1024^2, two a pixel side) leaves the
-    transport's staircase in the image: the design says so (`LensDesign.warnings`)."""
+    """A 512-pixel target on black on its default grid (1024^2, two a pixel side) loses
+    fine detail: the design says so (`LensDesign.warnings`); a photograph there is
+    finished by the image refinement, and is reported below two a side."""
     from types import SimpleNamespace
 
     from jaxcaustics.inverse.design import _design_warnings
 
-    def notes(grid, target):
+    photo, black = np.ones((8, 8)), np.zeros((8, 8))
+    black[2:5, 2:5] = 1.0
+
+    def notes(grid, target, goal):
         setup = SimpleNamespace(
-            shapes=[grid], target_shape=target, start=jc.TransportStart(), warn_error=0.15
-        )
+            shapes=[grid], target_shape=target, start=jc.TransportStart(), warn_error=0.15,
+            goal=goal,
+        )  # fmt: skip
         return _design_warnings(setup, [], 0.05, 0.0)
 
-    (note,) = notes((1024, 1024), (512, 512))
+    (note,) = notes((1024, 1024), (512, 512), black)
     assert "2 samples per target pixel side" in note and "`heights_shape`" in note
-    assert notes((1024, 1024), (256, 256)) == []  # four a side
-    assert notes((128, 128), (128, 128)) == []  # small targets: as asked
+    assert notes((1024, 1024), (512, 512), photo) == []  # refined
+    (note,) = notes((1024, 1024), (1024, 1024), photo)
+    assert "1 samples per target pixel side; below 2" in note
+    assert notes((1024, 1024), (256, 256), black) == []  # four a side
+    assert notes((128, 128), (128, 128), black) == []  # small targets: as asked

@@ -12,7 +12,8 @@ settings in a file of its own:
 - `PoissonLevels` (`poisson_levels.py`): the weak-lens Poisson start and the irradiance
   residual solved coarse to fine (needs light everywhere: a floor);
 - `ImageRefinement` (the finish, `image_refine.py`): a few L-BFGS steps on the image
-  misfit where the target has dark regions.
+  misfit where the target has dark regions (and on a photograph whose heights grid has
+  fewer than four samples a pixel side).
 
 Every stage steps its Optimistix solver through one driver (`driver.iterate`); the lens's
 optics are `lens_model.LensModel`; the checks and the derived set-up are
@@ -38,7 +39,7 @@ from ..scene.mirror import MirrorScene
 from ..scene.scene import DirectionalLight, LensScene, PointLight
 from .checkpoint import check_checkpoint
 from .design_rounds import solve_in_rounds
-from .design_setup import Setup
+from .design_setup import Setup, has_dark_regions
 from .image_refine import ImageRefinement
 from .lens_setup import prepare
 from .poisson_levels import PoissonLevels, check_levels
@@ -147,7 +148,9 @@ def design(
     - `start`: how the heights are found: `TransportStart()` (default) or
       `PoissonLevels()`, each with its settings.
     - `finish`: `ImageRefinement()` (default; it runs where the target has dark regions,
-      and always under leaning light, off a mirror or before a posed screen) or ``None``.
+      on a photograph whose heights grid has fewer than four samples a target pixel
+      side, and always under leaning light, off a mirror or before a posed screen) or
+      ``None``.
     - `mask`: boolean ``(rows, cols)``: pixels that may receive light; outside it the
       target is dark (up to the start's `floor`).
     - `heights_shape`: the final heights grid ``(rows, cols)``; default: the start's.
@@ -298,7 +301,8 @@ def design_lens(
       the Poisson start's.
     - `transport_iterations`: back-and-forth iterations of the transport at most.
     - `refine_steps`: the transport start's finish (`ImageRefinement`; None: 8 under
-      vertical light, 24 under leaning light), for targets with dark regions
+      vertical light, 4 for a photograph on a coarse grid, 24 under leaning light), for
+      targets with dark regions
       (below 5% of the mean on more than 10% of the screen: there the map jumps and the
       fitted surface spreads light across the gaps) and for any under leaning light:
       this many L-BFGS steps on the
@@ -560,14 +564,17 @@ def _design_warnings(setup: Setup, reports, error: float, dark_flux: float) -> l
                 + (" (the start's `iterations`)" if transport else "")
             )
     side = max(setup.shapes[-1]) / max(setup.target_shape)
-    if isinstance(setup.start, TransportStart) and side < 4 and max(setup.target_shape) > 256:
+    # a photograph's coarse grid is finished by the image refinement (`_fine_detail`)
+    enough = 2 if not has_dark_regions(setup.goal) else 4
+    if isinstance(setup.start, TransportStart) and side < enough and max(setup.target_shape) > 256:
         notes.append(
             f"design: the heights grid {tuple(setup.shapes[-1])} has {side:.3g} samples per "
-            "target pixel side; below 4 the transport's one-cell staircase shows as a fine "
-            "cross-hatch (measured on the camera, judged by the exported solid: 1 - SSIM "
-            "0.04 at 256 pixels with 4, 0.22 at 512 with 2, 0.60 at 1024 with 1): a larger "
-            "`heights_shape` (the camera at 512 pixels with 2048^2 took 125 s, not 31 s, "
-            "and judged 0.138) or a smaller target"
+            f"target pixel side; below {enough} the transport misplaces edges and fine "
+            "detail by a fraction of a pixel (measured, judged by the height map: the "
+            "camera at 512 pixels with 2, relative L2 0.019 and 1 - SSIM 0.035; at 1024 "
+            "with 1, 0.072 and 0.34; the silhouette at 512 with 2, 0.066 against 0.043 at "
+            "256 with 4): a larger `heights_shape` (slower: the camera at 512 pixels with "
+            "2048^2 took 125 s) or a smaller target"
         )
     if error > setup.warn_error:
         notes.append(
