@@ -564,9 +564,10 @@ def _design_warnings(setup: Setup, reports, error: float, dark_flux: float) -> l
                 + (" (the start's `iterations`)" if transport else "")
             )
     side = max(setup.shapes[-1]) / max(setup.target_shape)
+    coarse = isinstance(setup.start, TransportStart) and max(setup.target_shape) > 256
     # a photograph's coarse grid is finished by the image refinement (`_fine_detail`)
-    enough = 2 if not has_dark_regions(setup.goal) else 4
-    if isinstance(setup.start, TransportStart) and side < enough and max(setup.target_shape) > 256:
+    enough = 4 if coarse and has_dark_regions(setup.goal) else 2
+    if coarse and side < enough:
         notes.append(
             f"design: the heights grid {tuple(setup.shapes[-1])} has {side:.3g} samples per "
             f"target pixel side; below {enough} the transport misplaces edges and fine "
