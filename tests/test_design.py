@@ -753,6 +753,8 @@ def test_a_photograph_on_a_coarse_grid_gets_a_few_refinement_steps():
     assert image_refine._fine_detail(coarse, n) and not image_refine._fine_detail(fine, n)
     assert not image_refine._fine_detail(coarse, 2 * 32)  # one photon a pixel side
     assert finish.budget(coarse) == image_refine.PHOTO_STEPS
+    # at 1024 pixels the cap of 1025 photons is one a pixel side: a photograph gets two
+    assert finish.photons_for(setup(blob(1024), 1024)) == 2 * 1024 + 1
     assert finish.budget(setup(silhouette(), 64)) == image_refine.STEPS
     assert image_refine._variable_scale(coarse) == 1.0  # 32 pixels: below the tuned gain
     wide, wider = setup(blob(256), 512), setup(blob(512), 1024)
