@@ -159,15 +159,23 @@ def _fine_detail(setup: Setup, photons: int) -> bool:
     `reference.trace_lens_triangles`: relative L2 0.035 and 1 - SSIM 0.101 without,
     0.018 and 0.034 after eight steps at scale 1; with one photon a pixel side, 0.045
     and 0.147: worse)."""
-    rows, cols = setup.shapes[-1]
-    side = max(setup.target_shape)
-    return max(rows, cols) < 4 * side and photons >= 2 * side + 1
+    return _coarse_grid(setup) and photons >= 2 * max(setup.target_shape) + 1
+
+
+def _coarse_grid(setup: Setup) -> bool:
+    """Fewer than four heights samples a target pixel side."""
+    return max(setup.shapes[-1]) < 4 * max(setup.target_shape)
 
 
 def _straight(setup: Setup) -> bool:
     """Vertical light from a point at infinity onto a lens over the ground: the map the
     transport finds is one the lens can make (an extended source's blur is not in it)."""
     return setup.vertical and not setup.is_mirror and setup.pose is None and setup.kernel is None
+
+
+def _photograph(setup: Setup) -> bool:
+    """`_straight` light onto a target without dark regions (`has_dark_regions`)."""
+    return _straight(setup) and not has_dark_regions(setup.seen_goal)
 
 
 class ImageRefinement(eqx.Module):
@@ -217,7 +225,7 @@ class ImageRefinement(eqx.Module):
             return self.steps
         if not _straight(setup):
             return LEANING_STEPS
-        return STEPS if has_dark_regions(setup.seen_goal) else PHOTO_STEPS
+        return PHOTO_STEPS if _photograph(setup) else STEPS
 
     def photons_for(self, setup: Setup) -> int:
         """Photons per side of the refinement's image: `photons`, or its default (for a
@@ -228,10 +236,7 @@ class ImageRefinement(eqx.Module):
             return self.photons
         side = max(setup.target_shape)
         n = min(4 * side + 1, MAX_DEFAULT_PHOTONS)
-        coarse = max(setup.shapes[-1]) < 4 * side
-        if coarse and _straight(setup) and not has_dark_regions(setup.seen_goal):
-            n = max(n, 2 * side + 1)
-        return n
+        return max(n, 2 * side + 1) if _coarse_grid(setup) and _photograph(setup) else n
 
     def refine(self, setup: Setup, h: np.ndarray, history: list, callback):
         """Refine heights `h` ``(rows, cols)`` (metres) of `setup`'s lens. Returns
@@ -242,8 +247,7 @@ class ImageRefinement(eqx.Module):
         n = self.photons_for(setup)
         # straight light with no large dark regions: few jumps of the map to clean up,
         # unless the grid is coarse for the picture's detail
-        photo = _straight(setup) and not has_dark_regions(goal)
-        if steps == 0 or (photo and not _fine_detail(setup, n)):
+        if steps == 0 or (_photograph(setup) and not _fine_detail(setup, n)):
             return h, None
         setup.check_thickness(h)  # before its scene is built
         # modes the photon grid resolves (finer ones it sees aliased, as coarser ones,
