@@ -42,28 +42,34 @@ _WIDE_PER_LINE = 4  # blocks per line, pooled over a chunk, searched over the wh
 _CHUNK_ELEMENTS = 1 << 23  # the largest intermediate of a chunk of lines, elements
 
 
-def _brute_lines(f: jax.Array, x: jax.Array, s: jax.Array) -> jax.Array:
-    """``max_j (s_i x_j - f[l, j])`` for every line `l` of `f` ``(lines, n)`` and slope
-    ``s_i``: ``(lines, len(s))``, by searching every point."""
-    sx = s[:, None] * x[None, :]  # (m, n)
-    return jnp.max(sx[None, :, :] - f[:, None, :], axis=2)
+def _score(s: jax.Array, x: jax.Array, u: jax.Array) -> jax.Array:
+    """``s x - f(x) - s^2 / 2 = -(s - x)^2 / 2 - u(x)`` for ``f = x^2 / 2 + u``: small
+    near the maximiser, where ``s x`` and ``f`` are not (module docstring)."""
+    return -0.5 * (s - x) ** 2 - u
 
 
-def _bracketed_lines(f: jax.Array, x: jax.Array, s: jax.Array):
+def _brute_lines(u: jax.Array, x: jax.Array, s: jax.Array) -> jax.Array:
+    """``max_j (-(s_i - x_j)^2 / 2 - u[l, j])`` for every line `l` of `u` ``(lines, n)``
+    and slope ``s_i``: ``(lines, len(s))``, by searching every point."""
+    return jnp.max(_score(s[None, :, None], x[None, None, :], u[:, None, :]), axis=2)
+
+
+def _bracketed_lines(u: jax.Array, x: jax.Array, s: jax.Array):
     """`_brute_lines` for a chunk of lines, by anchors and windows (module docstring).
     Also returns whether the chunk had more wide blocks than provided for (then the
     result is wrong and `_legendre_lines` takes the brute force's)."""
-    lines, n = f.shape
+    lines, n = u.shape
     m = s.shape[0]
     blocks = -(-m // _BLOCK)
     s_pad = jnp.concatenate([s, jnp.full((blocks * _BLOCK - m,), s[-1], s.dtype)])
     anchors = jnp.concatenate([s_pad[::_BLOCK], s[-1:]])  # (blocks + 1,)
-    top = jnp.max(anchors[None, :, None] * x[None, None, :] - f[:, None, :], axis=2)
+    top = _brute_lines(u, x, anchors)  # f*(a) - a^2 / 2
     # f* is convex, its slope the maximiser: between two anchors, the secant's slope
     # bounds the maximisers of the anchors either side (in points, with a margin of 2
     # for rounding)
     ds = anchors[1:] - anchors[:-1]
-    secant = (top[:, 1:] - top[:, :-1]) / jnp.where(ds > 0, ds, 1.0)
+    mean = 0.5 * (anchors[1:] + anchors[:-1])  # the secant of a^2 / 2
+    secant = (top[:, 1:] - top[:, :-1]) / jnp.where(ds > 0, ds, 1.0) + mean
     point = (secant - x[0]) / (x[1] - x[0])
     low = jnp.where(ds > 0, jnp.floor(point) - 2, 0.0)  # maximisers at anchors 1.. from here
     high = jnp.where(ds > 0, jnp.ceil(point) + 2, n - 1.0)  # maximisers at anchors ..-2
@@ -74,29 +80,30 @@ def _bracketed_lines(f: jax.Array, x: jax.Array, s: jax.Array):
 
     start = jnp.minimum(lo, n - _WINDOW)
     index = start[:, :, None] + jnp.arange(_WINDOW)  # (lines, blocks, window)
-    fw = jnp.take_along_axis(f, index.reshape(lines, -1), axis=1).reshape(index.shape)
+    uw = jnp.take_along_axis(u, index.reshape(lines, -1), axis=1).reshape(index.shape)
     slopes = s_pad.reshape(blocks, _BLOCK)
-    near = jnp.max(slopes[None, :, :, None] * x[index][:, :, None, :] - fw[:, :, None, :], axis=3)
+    near = _score(slopes[None, :, :, None], x[index][:, :, None, :], uw[:, :, None, :])
+    near = jnp.max(near, axis=3)
 
     wide = (hi - lo) >= _WINDOW  # (lines, blocks): the bracket outgrows the window
     budget = lines * _WIDE_PER_LINE
     line, block = jnp.nonzero(wide, size=budget, fill_value=0)
-    full = slopes[block][:, :, None] * x[None, None, :] - f[line][:, None, :]
+    full = _score(slopes[block][:, :, None], x[None, None, :], u[line][:, None, :])
     near = near.at[line, block].set(jnp.max(full, axis=2))  # the fill repeats (0, 0): exact
     return near.reshape(lines, blocks * _BLOCK)[:, :m], jnp.sum(wide) > budget
 
 
-def _legendre_lines(f: jax.Array, x: jax.Array, s: jax.Array) -> jax.Array:
-    """``max_j (s_i x_j - f[l, j])`` along the last axis of `f` ``(lines, n)`` at the
-    increasing slopes `s` ``(m,)``, for evenly spaced increasing points `x` ``(n,)``:
-    ``(lines, m)``.
+def _legendre_lines(u: jax.Array, x: jax.Array, s: jax.Array) -> jax.Array:
+    """``max_j (-(s_i - x_j)^2 / 2 - u[l, j])`` along the last axis of `u` ``(lines, n)``
+    at the increasing slopes `s` ``(m,)``, for evenly spaced increasing points `x`
+    ``(n,)``: ``(lines, m)``.
     Chunks of lines go through `_bracketed_lines`, or by brute force where a line is
     too short for the windows or a chunk has more wide blocks than provided for."""
-    lines, n = f.shape
+    lines, n = u.shape
     m = s.shape[0]
     if n < 4 * _WINDOW or m < 4 * _BLOCK:
         chunk = max(1, min(lines, _CHUNK_ELEMENTS // max(n * m, 1)))
-        return _map_chunks(lambda c: _brute_lines(c, x, s), f, chunk, m)
+        return _map_chunks(lambda c: _brute_lines(c, x, s), u, chunk, m)
     blocks = -(-m // _BLOCK)
     per_line = max((blocks + 1) * n, m * _WINDOW, _WIDE_PER_LINE * _BLOCK * n)
     chunk = max(1, min(lines, _CHUNK_ELEMENTS // per_line))
@@ -105,29 +112,30 @@ def _legendre_lines(f: jax.Array, x: jax.Array, s: jax.Array) -> jax.Array:
         near, overflow = _bracketed_lines(c, x, s)
         return jax.lax.cond(overflow, lambda: _brute_lines(c, x, s), lambda: near)
 
-    return _map_chunks(one, f, chunk, m)
+    return _map_chunks(one, u, chunk, m)
 
 
-def _pieces(f: jax.Array, dx) -> tuple[jax.Array, jax.Array, jax.Array]:
-    """Each point's piece of the smooth interpolant of the lines `f` ``(lines, n)``:
-    the C^1 piecewise quadratic whose slope runs linearly between the differences
-    ``(f[j + 1] - f[j]) / dx`` at the midpoints (so that where a line is convex its
-    transform's maximiser moves continuously, not from point to point): piece ``j``
-    spans ``x_j +- dx / 2`` with slope ``a_j`` at ``x_j`` (the central difference) and
-    curvature ``b_j`` (the second difference, 0 where the line is concave; the ends
-    extrapolated quadratically). Returns ``(a, 1 / b, b / 2)``, each ``(lines, n)``."""
-    if f.shape[1] >= 3:
-        first = 3 * f[:, :1] - 3 * f[:, 1:2] + f[:, 2:3]
-        last = 3 * f[:, -1:] - 3 * f[:, -2:-1] + f[:, -3:-2]
+def _pieces(u: jax.Array, dx) -> tuple[jax.Array, jax.Array, jax.Array]:
+    """Each point's piece of the smooth interpolant of the lines ``f = x^2 / 2 + u``
+    (`u` ``(lines, n)``): the C^1 piecewise quadratic whose slope runs linearly between
+    the differences ``(f[j + 1] - f[j]) / dx`` at the midpoints (so that where a line is
+    convex its transform's maximiser moves continuously, not from point to point):
+    piece ``j`` spans ``x_j +- dx / 2`` with slope ``x_j + a_j`` at ``x_j`` (``a`` the
+    central difference of `u`) and curvature ``b_j`` (``f``'s second difference, 0 where
+    the line is concave; the ends extrapolated quadratically, which is exact for
+    ``x^2 / 2``). Returns ``(a, 1 / b, b / 2)``, each ``(lines, n)``."""
+    if u.shape[1] >= 3:
+        first = 3 * u[:, :1] - 3 * u[:, 1:2] + u[:, 2:3]
+        last = 3 * u[:, -1:] - 3 * u[:, -2:-1] + u[:, -3:-2]
     else:
-        first, last = 2 * f[:, :1] - f[:, 1:2], 2 * f[:, -1:] - f[:, -2:-1]
-    ext = jnp.concatenate([first, f, last], axis=1)
+        first, last = 2 * u[:, :1] - u[:, 1:2], 2 * u[:, -1:] - u[:, -2:-1]
+    ext = jnp.concatenate([first, u, last], axis=1)
     slope = (ext[:, 2:] - ext[:, :-2]) / (2 * dx)
-    curve = jnp.maximum((ext[:, 2:] - 2 * ext[:, 1:-1] + ext[:, :-2]) / dx**2, 0.0)
-    return slope, 1.0 / jnp.maximum(curve, jnp.finfo(f.dtype).tiny), 0.5 * curve
+    curve = jnp.maximum(1.0 + (ext[:, 2:] - 2 * ext[:, 1:-1] + ext[:, :-2]) / dx**2, 0.0)
+    return slope, 1.0 / jnp.maximum(curve, jnp.finfo(u.dtype).tiny), 0.5 * curve
 
 
-def _smooth_lines(f: jax.Array, x: jax.Array, s: jax.Array) -> jax.Array:
+def _smooth_lines(u: jax.Array, x: jax.Array, s: jax.Array) -> jax.Array:
     """`_legendre_lines` of each line's smooth interpolant (`_pieces`): at slope ``s``
     the best over piece ``j`` of ``s (x_j + t) - f_j - a_j t - b_j t^2 / 2``
     (``|t| <= dx / 2``), which is ``t (|u| - b_j t / 2)`` above the discrete score at
@@ -141,25 +149,27 @@ def _smooth_lines(f: jax.Array, x: jax.Array, s: jax.Array) -> jax.Array:
     stretch makes the search miss, the discrete value stands). The three pieces'
     numbers are gathered as one slice (twelve gathers of one number took 0.5 s, not
     0.18 s, for a 1024^2 transform on 2 cores)."""
-    lines, n = f.shape
+    lines, n = u.shape
     dx = x[1] - x[0]
-    discrete = _legendre_lines(f, x, s)
-    rising = jax.lax.cummax((f[:, 1:] - f[:, :-1]) / dx, axis=1)
+    discrete = _legendre_lines(u, x, s)
+    # f's differences: the midpoints plus u's
+    rising = jax.lax.cummax(0.5 * (x[1:] + x[:-1]) + (u[:, 1:] - u[:, :-1]) / dx, axis=1)
     below = jax.vmap(lambda row: jnp.searchsorted(row, s, side="left"))(rising)
-    slope, inverse, half_curve = _pieces(f, dx)
-    pieces = jnp.stack([jnp.broadcast_to(x, f.shape), f, slope, inverse, half_curve], axis=-1)
+    slope, inverse, half_curve = _pieces(u, dx)
+    pieces = jnp.stack([jnp.broadcast_to(x, u.shape), u, slope, inverse, half_curve], axis=-1)
     # a piece either side that never wins (its score is -1e30), for the neighbours
-    never = jnp.zeros((lines, 1, 5), f.dtype).at[..., 1].set(1e30)
+    never = jnp.zeros((lines, 1, 5), u.dtype).at[..., 1].set(1e30)
     pieces = jnp.concatenate([never, pieces, never], axis=1)  # (lines, n + 2, 5)
 
     def three(line, j):  # pieces j - 1, j, j + 1 (padded index j .. j + 2)
         return jax.lax.dynamic_slice(line, (j, jnp.zeros_like(j)), (3, 5))
 
     near = jax.vmap(jax.vmap(three, (None, 0)), (0, 0))(pieces, below.astype(jnp.int32))
-    xj, fj, a, inv, half = (near[..., k] for k in range(5))  # each (lines, m, 3)
-    u = jnp.abs(s[None, :, None] - a)
-    t = jnp.minimum(u * inv, 0.5 * dx)
-    score = s[None, :, None] * xj - fj + t * (u - half * t)
+    xj, uj, a, inv, half = (near[..., k] for k in range(5))  # each (lines, m, 3)
+    gap = s[None, :, None] - xj
+    w = jnp.abs(gap - a)  # |s - f'(x_j)|
+    t = jnp.minimum(w * inv, 0.5 * dx)
+    score = -0.5 * gap**2 - uj + t * (w - half * t)
     return jnp.maximum(discrete, jnp.max(score, axis=2))
 
 
@@ -178,20 +188,22 @@ def cell_centres(n: int, h, ghost: int, dtype):
     return (jnp.arange(-ghost, n + ghost, dtype=dtype) + 0.5) * h
 
 
-def legendre(f: jax.Array, h, ghost: int = 0, hy=None, smooth: bool = False) -> jax.Array:
-    """Discrete Legendre transform ``f*(s) = max_x (s . x - f(x))`` of `f` given at the
-    cell centres of its ``(rows, cols)`` grid (cells `h` wide, `hy` high: `h` if None),
-    evaluated at the centres of the same grid grown by `ghost` cells on every side:
-    ``(rows + 2 ghost, cols + 2 ghost)``. `smooth`: each 1-D transform is that of the
-    line's smooth interpolant (`_smooth_lines`), whose slope (the transport's map)
-    moves within the cells where the discrete transform's steps from one centre to
-    the next."""
+def legendre(u: jax.Array, h, ghost: int = 0, hy=None, smooth: bool = False) -> jax.Array:
+    """Discrete Legendre transform ``f*(s) = max_x (s . x - f(x))`` of ``f = |x|^2 / 2
+    + u``, `u` given at the cell centres of its ``(rows, cols)`` grid (cells `h` wide,
+    `hy` high: `h` if None), as its difference from ``|s|^2 / 2``:
+    ``v(s) = f*(s) - |s|^2 / 2 = max_x (-|s - x|^2 / 2 - u(x))``, evaluated at the
+    centres of the same grid grown by `ghost` cells on every side:
+    ``(rows + 2 ghost, cols + 2 ghost)``. The transform of ``v`` is then ``u`` again
+    where ``f`` is convex. `smooth`: each 1-D transform is that of the line's smooth
+    interpolant (`_smooth_lines`), whose slope (the transport's map) moves within the
+    cells where the discrete transform's steps from one centre to the next."""
     hy = h if hy is None else hy
-    rows, cols = f.shape
-    dtype = f.dtype
+    rows, cols = u.shape
+    dtype = u.dtype
     lines = _smooth_lines if smooth else _legendre_lines
-    g = lines(f, cell_centres(cols, h, 0, dtype), cell_centres(cols, h, ghost, dtype))
-    # f*(s) = max_r (s_row x_r + g(r, s_col)) = max_r (s_row x_r - (-g))
+    g = lines(u, cell_centres(cols, h, 0, dtype), cell_centres(cols, h, ghost, dtype))
+    # v(s) = max_r (-(s_row - x_r)^2 / 2 + g(r, s_col)) = max_r (... - (-g))
     x, s = cell_centres(rows, hy, 0, dtype), cell_centres(rows, hy, ghost, dtype)
     out = lines(-g.T, x, s)
     return out.T
