@@ -331,6 +331,8 @@ def test_transport_design_of_a_black_background_by_the_reference(silhouette_desi
     assert d.levels[0]["stage"] == "transport" and d.levels[1]["stage"] == "landing fit"
     assert not d.levels[0]["smooth"]  # a black background: the grid's own transforms
     assert d.heights.shape == (128, 128)  # four heights per pixel side
+    # one level: 128^2 cells are under the multiscale transport's coarsest grid
+    assert [level[0] for level in d.levels[0]["levels"]] == [(128, 128)]
     assert np.all(np.isfinite(d.heights)) and np.isclose(d.heights.max(), 0.0)
     ref = trace_lens(d.scene, 1024)
     error = rel_l2(ref, target)

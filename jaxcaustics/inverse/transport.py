@@ -8,17 +8,21 @@ of water recovery. See the design notes (``docs/design-notes.md``).
 Multiscale: a grid over `COARSEST` cells a side is solved first on grids halved down to
 it, each level's potential starting the next (bicubically resampled), so the finest
 grid spends a few iterations where a cold start spends dozens on overshoots while its
-step size adapts. Measured (float32, 2 cores, one process): the camera at 512^2 pixels
-on 1024^2 cells (smooth transforms) 30 iterations and 29 s cold, misfit 0.036; from
-256^2 up 6 iterations on the finest grid and 18-25 s, misfit 0.025. The silhouette on
-2048^2 cells (grid transforms): cold, its first 30 iterations stayed between 1.1 and
-1.9 and the stall rule ended it at 0.71 in 165 s; from 256^2 up, 0.13 in 59 s.
+step size adapts. Measured (float32, 2 cores, one process, compilation included; each
+target pixel 2 x 2 cells), misfit and time on 1024^2 cells, one level against two:
+the camera (smooth transforms) 0.036 in 29 s against 0.024 in 20 s; the silhouette
+0.115 in 35 s against 0.105 in 23 s; the lettering 0.066 in 68 s against 0.068 in
+42 s. From 256^2 (three levels) all three were worse (0.025, 0.113, 0.071: thin
+strokes a coarse level cannot resolve start the finer ones off). On 2048^2 cells, from
+256^2: the silhouette's cold start spent its first 30 iterations between misfits 1.1
+and 1.9 while the step adapted, and the stall rule ended it at 0.71 in 165 s;
+multiscale, 0.13 in 59 s.
 
 The potentials are kept as ``u = psi - |x|^2 / 2`` (`legendre`): near 0.5 a float32
 ``psi`` rounds at 3e-8, an eighth of a cell's ``dx^2`` at 2048^2, and the map it gave
 was noise at that scale (the camera's misfit on 2048^2 cells 0.092, in float64 0.013;
 with ``u``, 0.045). Float32 still loses the potential's updates below ``u``'s own
-rounding (2-4e-9) near convergence: on 1024^2 cells the camera's misfit is 0.025 in
+rounding (2-4e-9) near convergence: on 1024^2 cells the camera's misfit is 0.024 in
 float32 and 0.019 in float64.
 
 Coordinates: cell ``(i, j)``'s centre is ``((j + 0.5) h, (i + 0.5) h)`` with
@@ -59,7 +63,7 @@ _COARSE_STALL = 0.02
 # at 1.75x its levels' misfits rose for a few iterations
 _WARM_STEP = 1 / 8
 # the multiscale transport's coarsest level, longer side (cells), by default
-COARSEST = 256
+COARSEST = 512
 # most back-and-forth iterations (the residual history is a buffer of the next power of
 # two: 10^12 overflowed the jitted loop's int32 counter after the checks)
 MAX_ITERATIONS = 1 << 20
@@ -216,7 +220,7 @@ def level_shapes(shape, coarsest: int | None) -> list[tuple[int, int]]:
     """The grids of a multiscale transport onto a ``(rows, cols)`` grid, coarsest first:
     `shape` halved (rounded up) while its longer side is over `coarsest` (and its
     shorter side at least 8); ``[shape]`` for None."""
-    shapes = [tuple(int(n) for n in shape)]
+    shapes = [(int(shape[0]), int(shape[1]))]
     while coarsest is not None and max(shapes[0]) > coarsest and min(shapes[0]) >= 8:
         rows, cols = shapes[0]
         shapes.insert(0, ((rows + 1) // 2, (cols + 1) // 2))

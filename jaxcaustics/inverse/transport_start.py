@@ -545,6 +545,7 @@ class TransportStart(eqx.Module):
                 "stage": "transport",
                 "shape": shape,
                 "steps": transport_steps,  # both passes' under leaning light
+                "levels": plan.levels,  # the multiscale levels' (shape, steps, misfit)
                 "smooth": smooth_map,  # the smooth Legendre transforms
                 "loss": float(plan.residual[-1]),
                 "result": (
