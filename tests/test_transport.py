@@ -242,7 +242,8 @@ def test_level_shapes_halve_down_to_the_coarsest():
     assert level_shapes((4096, 6), 64)[0] == (4096, 6)  # too thin to halve
 
 
-@pytest.mark.parametrize("smooth", [False, True])
+# the smooth transforms' variant is slow (20 s of the default run's 8 minutes)
+@pytest.mark.parametrize("smooth", [False, pytest.param(True, marks=pytest.mark.slow)])
 def test_multiscale_transport_reaches_the_single_levels_map(smooth):
     """A 144^2 pair of Gaussians solved from a 36^2 level up (two halvings) against one
     level: the same map, to a fraction of a cell, in fewer iterations on the finest grid
