@@ -572,10 +572,9 @@ def _design_warnings(setup: Setup, reports, error: float, dark_flux: float) -> l
             f"design: the heights grid {tuple(setup.shapes[-1])} has {side:.3g} samples per "
             f"target pixel side; below {enough} the transport misplaces edges and fine "
             "detail by a fraction of a pixel (measured, judged by the height map: the "
-            "camera at 512 pixels with 2, relative L2 0.019 and 1 - SSIM 0.035; at 1024 "
-            "with 1, 0.046 and 0.20; the silhouette at 512 with 2, 0.066 against 0.043 at "
-            "256 with 4): a larger `heights_shape` (slower: the camera at 512 pixels with "
-            "2048^2 took 125 s) or a smaller target"
+            "camera at 512 pixels with 2, relative L2 0.019 and 1 - SSIM 0.033; at 1024 "
+            "with 1, 0.039 and 0.15; the silhouette at 512 with 2, 0.062 against 0.042 at "
+            "256 with 4): a larger `heights_shape` (slower) or a smaller target"
         )
     if error > setup.warn_error:
         notes.append(

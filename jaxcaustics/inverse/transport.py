@@ -134,10 +134,10 @@ def _normalised(rho: jax.Array, mass) -> jax.Array:
 
 
 class _Stop(NamedTuple):
-    """When a level's iterations end (traced: the levels share their compilations):
-    at `iterations`, at the misfit `tol`, or stalled (the last `patience` iterations did
-    not bring the misfit below ``(1 - stall)`` times its best before them), never
-    stalled before `minimum` iterations."""
+    """When a level's iterations end (traced: calls that differ only in these share a
+    compilation): at `iterations`, at the misfit `tol`, or stalled (the last `patience`
+    iterations did not bring the misfit below ``(1 - stall)`` times its best before
+    them), never stalled before `minimum` iterations."""
 
     iterations: int
     tol: float
