@@ -700,14 +700,22 @@ def test_a_minimiser_object_designs_on_the_half_sum_of_squares():
     assert len(history) >= 2 and history[-1] < history[0]
 
 
-def test_the_default_prediction_has_four_photons_a_pixel_side():
-    """4 photons a pixel side at any size: a 512-pixel target's 2049^2 photons were once
-    capped at the 1 GiB of one trace (2047); they are now traced in bands when they do
-    not fit (`test_design_memory`)."""
+def test_the_default_prediction_has_four_photons_a_pixel_side_up_to_2049():
+    """4 photons a pixel side up to 2049 a side, and at least 2 beyond: a 512-pixel
+    target's 2049^2 photons were once capped at the 1 GiB of one trace (2047); they are
+    now traced in bands when they do not fit (`test_design_memory`). At 1024 pixels 2049
+    predict the lettering's design as 4097 do (0.0853 against 0.0859), in a quarter of
+    the time, unless the image refinement fitted the heights on 2049."""
     from jaxcaustics.inverse.lens_setup import predict_photons_default
 
     assert predict_photons_default((128, 128)) == 513
     assert predict_photons_default((4, 512)) == 2049
+    assert predict_photons_default((1024, 1024)) == 2049
+    assert predict_photons_default((2048, 1024)) == 4097
+    # not the photon grid the refinement fitted the heights to (it flatters them)
+    assert predict_photons_default((1024, 1024), refined=2049) == 4097
+    assert predict_photons_default((1024, 1024), refined=1025) == 2049
+    assert predict_photons_default((128, 128), refined=513) == 513  # 4 a side already
 
 
 def _bevel_setup(thickness: float, zenith_deg: float) -> SimpleNamespace:
@@ -738,8 +746,9 @@ def test_a_target_has_dark_regions_past_a_tenth_of_its_pixels_below_5_percent():
 def test_a_photograph_on_a_coarse_grid_gets_a_few_refinement_steps():
     """Fewer than four heights samples a target pixel side, with at least two of the
     refinement's photons: a photograph is refined too (`PHOTO_STEPS`); with four
-    samples, not; a target on black gets `STEPS`. The variable's scale grows with the
-    landing gain in pixels (4x the pixels: 4x the scale), never below 1."""
+    samples, not; a target on black gets `STEPS`, and `COARSE_STEPS` on fewer than
+    four samples. The variable's scale grows with the landing gain in pixels (4x the
+    pixels: 4x the scale), never below 1."""
     import jaxcaustics as jc
     from jaxcaustics.inverse import image_refine
     from jaxcaustics.inverse.lens_setup import prepare
@@ -757,7 +766,10 @@ def test_a_photograph_on_a_coarse_grid_gets_a_few_refinement_steps():
     assert finish.budget(coarse) == image_refine.PHOTO_STEPS
     # at 1024 pixels the cap of 1025 photons is one a pixel side: a photograph gets two
     assert finish.photons_for(setup(blob(1024), 1024)) == 2 * 1024 + 1
-    assert finish.budget(setup(silhouette(), 64)) == image_refine.STEPS
+    # a target on black: `COARSE_STEPS` on fewer than four samples a pixel side
+    assert finish.budget(setup(silhouette(), 128)) == image_refine.STEPS
+    assert finish.budget(setup(silhouette(), 64)) == image_refine.COARSE_STEPS
+    assert image_refine.COARSE_STEPS > image_refine.STEPS
     assert image_refine._variable_scale(coarse) == 1.0  # 32 pixels: below the tuned gain
     wide, wider = setup(blob(256), 512), setup(blob(512), 1024)
     assert image_refine._variable_scale(wide) > 1.0

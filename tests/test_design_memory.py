@@ -155,7 +155,7 @@ def test_a_grid_below_four_samples_a_pixel_is_reported():
         return _design_warnings(setup, [], 0.05, 0.0)
 
     (note,) = notes((1024, 1024), (512, 512), black)
-    assert "2 samples per target pixel side" in note and "`heights_shape`" in note
+    assert "2 samples per target pixel side" in note and "`ImageRefinement(steps" in note
     assert notes((1024, 1024), (512, 512), photo) == []  # refined
     (note,) = notes((1024, 1024), (1024, 1024), photo)
     assert "1 samples per target pixel side; below 2" in note

@@ -27,14 +27,17 @@ _BLUR = 0.7  # pixels: the correction's Gaussian
 _CLIP = (0.5, 2.0)  # the correction's ratio, per round
 
 
-def predict_caustic(setup: Setup, h) -> tuple[np.ndarray, float, int, LensScene | MirrorScene]:
+def predict_caustic(
+    setup: Setup, h, refined: int | None = None
+) -> tuple[np.ndarray, float, int, LensScene | MirrorScene]:
     """The caustic of `setup`'s element with heights `h` (caustic triangles at the
-    design's `predict_photons`): ``(image (rows, cols), flux fraction missed, window,
-    scene)``. Photons that fit in half of the design's `memory_limit` are traced at
-    once; more are traced and drawn in bands of rows (`caustic_triangles`' banded
-    render: the same image, `test_design_memory`)."""
+    design's `predict_photons`; `refined`: the image refinement's photons per side, if
+    it ran, which the default avoids: `predict_photons_default`): ``(image (rows,
+    cols), flux fraction missed, window, scene)``. Photons that fit in half of the
+    design's `memory_limit` are traced at once; more are traced and drawn in bands of
+    rows (`caustic_triangles`' banded render: the same image, `test_design_memory`)."""
     scene = setup.element_scene(h)
-    n_pred = setup.predict_photons or predict_photons_default(setup.target_shape)
+    n_pred = setup.predict_photons or predict_photons_default(setup.target_shape, refined)
     if band_bytes(n_pred * n_pred, 1, jnp.result_type(float)) > setup.memory_limit // 2:
         result = caustic_triangles(
             scene, photons=n_pred, window=PREDICT_WINDOW, memory_limit=setup.memory_limit
