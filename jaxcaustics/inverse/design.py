@@ -486,8 +486,11 @@ def _finish(setup: Setup, h, history, level_reports, result, t_start: float) -> 
         h = fresnel_zones(h, setup.max_relief)
     setup.check_thickness(h)
     t0 = time.perf_counter()
-    refined = [r.get("photons") for r in level_reports if r.get("stage") == "image refinement"]
-    predicted, missed, window, final = predict_caustic(setup, h, (refined or [None])[-1])
+    # the image refinement's photons per side (None if it did not run)
+    refined = next(
+        (r.get("photons") for r in level_reports if r.get("stage") == "image refinement"), None
+    )
+    predicted, missed, window, final = predict_caustic(setup, h, refined)
     if setup.kernel is not None:  # as seen under the extended source
         predicted = blur(predicted, setup.kernel)
     timings["predict"] = time.perf_counter() - t0
